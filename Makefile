@@ -1,0 +1,47 @@
+# biped_switch: `make demo` (the main job) and `make test` (the tests) each install what they need
+# into .venv by themselves on a fresh machine (Python 3.11+ and PyPI access).
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: install demo test test-all bench bench-1art wheels gpu-bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	touch $@
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m biped_switch.demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-all: $(STAMP)  ## includes tests marked slow
+	$(PY) -m pytest -q -m ''
+
+bench: $(STAMP)
+	$(PY) -m biped_switch.bench --batch 256 --kind mixed --json
+
+bench-1art: $(STAMP)  ## same, on 1-artifact tracks (cost must not grow with track length)
+	$(PY) -m biped_switch.bench --batch 256 --kind mixed --n-artifacts 1 --json
+
+# Wheels for the GPU host (Python 3.12, jax 0.11.2, flax/optax/orbax preinstalled, no network):
+# everything else it needs, into the git-ignored .whl/ (about 30 MB). See scripts/gpu_run.sh.
+GPU_WHEELS := mujoco==4.0.0 mujoco-core==4.0.0 mujoco-studio==4.0.0 mujoco-mjx==3.17.0 \
+  brax==0.14.2 ml-collections==1.1.0 jaxopt==0.8.5 trimesh==5.2.0 tensorboardx==2.6.5 \
+  glfw==2.11.0 pyopengl==3.1.10 flask==3.1.3 flask-cors==6.0.5 itsdangerous==2.2.0 blinker==1.9.0
+PLATFORMS := $(foreach n,2_28 2_27 2_17,--platform manylinux_$(n)_x86_64) --platform manylinux2014_x86_64 \
+  --platform manylinux1_x86_64 --platform any
+wheels:
+	mkdir -p .whl
+	$(PYTHON) -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+	  --implementation cp $(PLATFORMS) -d .whl $(GPU_WHEELS)
+	du -sh .whl
+
+clean:
+	rm -rf $(VENV) .pytest_cache *.egg-info

@@ -1,0 +1,118 @@
+"""Speed figures of the environment as one JSON object (a benchmark, never a timed test).
+
+    python -m biped_switch.bench --batch 256 --kind mixed --json
+
+Rolls a batch of envs (one track each, from a bank) with the scripted standing controller, so all
+eight sole spheres stay in contact: the physics does its full contact work every step. Prints
+compile_s, control_steps_per_s, physics_steps_per_s, heightmap_share (the heightmap lookup's time as
+a fraction of a control step's) and n_boxes (the compiled box slots every step pays for), with the
+device and the versions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_switch import env as env_lib
+from biped_switch import terrain
+from biped_switch.config import default_terrain_config
+from biped_switch.heightmap import heightmap
+
+
+def _time(fn, *args, reps: int) -> float:
+    """Seconds per call of an already compiled fn, blocking on its result."""
+    jax.block_until_ready(fn(*args))
+    t0 = time.perf_counter()
+    out = None
+    for _ in range(reps):
+        out = fn(*args)
+    jax.block_until_ready(out)
+    return (time.perf_counter() - t0) / reps
+
+
+def run(batch: int = 256, kind: str = "mixed", steps: int = 20, seed: int = 0,
+        n_artifacts: int | None = None, n_tracks: int = 32) -> dict:
+    tcfg = default_terrain_config()
+    if n_artifacts is not None:
+        tcfg.n_artifacts = n_artifacts
+    cfg = env_lib.default_env_config()
+    cfg.kind, cfg.n_tracks, cfg.seed = kind, n_tracks, seed
+    env = env_lib.BipedEnv(cfg, terrain_cfg=tcfg)
+    keys = jax.random.split(jax.random.PRNGKey(seed), batch)
+
+    reset = jax.jit(jax.vmap(env.reset))
+    t0 = time.perf_counter()
+    state = jax.block_until_ready(reset(keys))
+    reset_compile_s = time.perf_counter() - t0
+
+    step = jax.jit(jax.vmap(env.hold_step))
+    t0 = time.perf_counter()
+    compiled = step.lower(state).compile()
+    compile_s = time.perf_counter() - t0
+
+    # Advance past the settling of the first steps, then time.
+    for _ in range(3):
+        state = compiled(state)
+    step_s = _time(compiled, state, reps=steps)
+
+    com = state.pipeline_state.xipos[:, env.biped.pelvis_body]
+    yaw = jnp.zeros(batch)
+    hm = jax.jit(jax.vmap(lambda b, p, y: heightmap(b, p, y, cfg.heightmap.depth_m,
+                                                    cfg.heightmap.max_boxes)))
+    hm_s = _time(hm, state.info["boxes"], com, yaw, reps=steps)
+
+    used = (env.bank.segments[:, :, terrain.SOLID] > 0.5).sum(axis=1)
+    dev = jax.devices()[0]
+    return {
+        "batch": batch,
+        "kind": kind,
+        "n_artifacts": tcfg.n_artifacts,
+        "n_boxes": env.biped.box_capacity,
+        "n_boxes_used_mean": float(np.mean(used)),
+        "max_geom_pairs": env.model_cfg.max_geom_pairs,
+        "n_substeps": env.biped.n_substeps,
+        "compile_s": round(compile_s, 2),
+        "reset_compile_s": round(reset_compile_s, 2),
+        "control_step_ms": round(step_s * 1e3, 3),
+        "control_steps_per_s": round(batch / step_s, 1),
+        "physics_steps_per_s": round(batch * env.biped.n_substeps / step_s, 1),
+        "heightmap_ms": round(hm_s * 1e3, 3),
+        "heightmap_share": round(hm_s / step_s, 4),
+        "controller": "scripted standing (PD hold at every substep)",
+        "device": f"{dev.platform}:{getattr(dev, 'device_kind', '')}",
+        "n_devices": jax.device_count(),
+        "host": platform.node(),
+        "cpu_count": __import__("os").cpu_count(),
+        "jax": jax.__version__,
+    }
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m biped_switch.bench", description=__doc__.split("\n")[0])
+    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--kind", default="mixed", choices=terrain.KINDS)
+    p.add_argument("--steps", type=int, default=20, help="timed control steps")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n-artifacts", type=int, default=None, help="artifacts per track (paper: 7)")
+    p.add_argument("--json", action="store_true", help="print only the JSON object")
+    a = p.parse_args(argv)
+    if a.batch < 1 or a.steps < 1:
+        p.error(f"--batch and --steps must be >= 1 (got {a.batch}, {a.steps})")
+    if not a.json:
+        print(f"benchmarking batch {a.batch} on {a.kind} tracks on {jax.devices()[0]} ...",
+              file=sys.stderr)
+    res = run(a.batch, a.kind, a.steps, a.seed, a.n_artifacts)
+    print(json.dumps(res) if a.json else json.dumps(res, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

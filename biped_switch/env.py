@@ -1,0 +1,320 @@
+"""The biped on box-terrain tracks, as a vectorisable MJX environment (Brax `Env` interface).
+
+`reset(rng)` picks a track from a bank of seeded tracks and lays its boxes out at the (traced)
+difficulty; the boxes live in the state's info, and `step` writes them into the model's terrain
+slots (`model.with_boxes`), so every env of a batch has its own track and nothing recompiles.
+Actions are joint torques as fractions of each motor's limit, in [-1, 1].
+
+Observation = robot state (51) + heightmap (60 x 40, flattened row-major, rows run forward)
+[+ detected artifact one-hot (3) when `detector_one_hot`]. Robot state layout (STATE_SLICES):
+  0:12   joint positions [rad], order model.JOINT_NAMES (left then right: hip yaw, roll, pitch,
+         knee, ankle pitch, roll)
+  12:24  joint velocities [rad/s]
+  24:33  foot contacts now: left fl, fr, bl, br, right fl, fr, bl, br, then 1 if no point touches
+  33:42  the same one control step earlier
+  42:45  pelvis CoM linear velocity, world frame [m/s]
+  45:48  pelvis angular velocity, world frame [rad/s]
+  48     pelvis pitch [rad], 49 roll [rad] (world frame, ZYX Euler)
+  50     pelvis CoM height above the terrain beneath it [m] (clipped to the heightmap depth)
+"CoM" is the pelvis body's centre of mass, as the paper's "body CoM". Normalisation of the state
+(running mean/std) is left to the trainer (Brax PPO's `normalize_observations`).
+
+Initial states: `stand` starts in the standing keyframe and holds it with a PD controller for
+`pause_s` (policy actions are ignored then), so every `stand` policy takes over from the same set
+of states (the paper's RoA overlap); `random` starts from random joint angles with no pause.
+
+Reward per control step (weights in config.reward; the spirit of Tidd et al.'s guided-curriculum
+reward): progress * min(vx, v*) + speed * exp(-(vx - v*)^2 / 0.1) + alive + upright * cos(pitch)
+cos(roll) + height * exp(-(h - h_stand)^2 / 0.01) - lateral * (|y| + |yaw|) - torque * mean(a^2)
+- fall * [fell], where v* is the target speed (0 during the pause) and vx the CoM x velocity.
+Termination: a fall (h < fall_height_m, |pitch| or |roll| > fall_tilt_rad, or the CoM below
+fall_z_m, i.e. into a gap or off the track) or reaching the finish line (success).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from brax.envs.base import Env, State
+from mujoco import mjx
+
+from biped_switch import model as model_lib
+from biped_switch import terrain
+from biped_switch.config import default_env_config, default_model_config, default_terrain_config
+from biped_switch.heightmap import cell_offsets, heightmap, terrain_height
+
+STATE_SIZE = 51
+STATE_SLICES = {
+    "joint_pos": slice(0, 12),
+    "joint_vel": slice(12, 24),
+    "contact": slice(24, 33),
+    "contact_prev": slice(33, 42),
+    "com_lin_vel": slice(42, 45),
+    "com_ang_vel": slice(45, 48),
+    "pitch": slice(48, 49),
+    "roll": slice(49, 50),
+    "com_height": slice(50, 51),
+}
+INITS = ("stand", "random")
+FALL_Z_M = -0.2  # CoM below the track surface (z = 0 on flats): fell into a gap or off the side
+CONTACT_DIST_M = 1e-3  # a sole sphere touches when its signed distance is below this
+
+
+def _euler(xmat):
+    """ZYX yaw, pitch, roll [rad] of a rotation matrix."""
+    yaw = jnp.arctan2(xmat[1, 0], xmat[0, 0])
+    pitch = jnp.arcsin(jnp.clip(-xmat[2, 0], -1.0, 1.0))
+    roll = jnp.arctan2(xmat[2, 1], xmat[2, 2])
+    return yaw, pitch, roll
+
+
+def sole_contacts(data: mjx.Data, sole_geoms: np.ndarray) -> jnp.ndarray:
+    """(8,) 1.0 where a sole sphere touches the terrain, from the (culled) contact list."""
+    c = data._impl.contact
+    active = c.dist < CONTACT_DIST_M
+    g = jnp.asarray(sole_geoms.reshape(-1))
+    hit = (c.geom[None, :, 0] == g[:, None]) | (c.geom[None, :, 1] == g[:, None])
+    return jnp.any(hit & active[None, :], axis=1).astype(jnp.float32)
+
+
+class BipedEnv(Env):
+    """See the module docstring. Configs: env (traced values + `shape`), model, terrain."""
+
+    def __init__(self, env_cfg=None, model_cfg=None, terrain_cfg=None, biped=None, tracks=None):
+        self.cfg = env_cfg or default_env_config()
+        self.terrain_cfg = terrain_cfg or default_terrain_config()
+        self.model_cfg = model_cfg or default_model_config()
+        if self.cfg.init not in INITS:
+            raise ValueError(f"unknown init mode {self.cfg.init!r}; expected one of {INITS}")
+        terrain.check_difficulty(self.cfg.difficulty)
+        self.biped = biped or model_lib.build_model(self.model_cfg)
+        if tracks is None:
+            if self.cfg.n_tracks < 1:
+                raise ValueError(f"n_tracks must be >= 1, got {self.cfg.n_tracks}")
+            tracks = [terrain.generate_track(self.cfg.seed + i, self.cfg.kind, 1.0, self.terrain_cfg)
+                      for i in range(self.cfg.n_tracks)]
+        bank = terrain.stack_tracks(tracks, self.biped.box_capacity, self.terrain_cfg.n_artifacts)
+        self.bank = bank
+        self._bank = jax.tree.map(jnp.asarray, {
+            "segments": bank.segments.astype(np.float32), "width": bank.width_m.astype(np.float32),
+            "origin": bank.x_origin_m.astype(np.float32), "codes": bank.artifact_codes,
+            "spans": bank.artifact_segments, "after": bank.finish_after_m.astype(np.float32)})
+        self._offsets = jnp.asarray(cell_offsets(self.cfg.heightmap, self.cfg.shape), jnp.float32)
+        b = self.biped
+        self._data0 = mjx.make_data(b.mj_model, impl="jax")
+        self._stand_q = jnp.asarray(b.stand_qpos[b.qpos_adr], jnp.float32)
+        self._kp = jnp.asarray(3.0 * b.gear, jnp.float32)  # PD hold [Nm/rad]
+        self._kd = self._kp / 20.0  # [Nm s/rad]
+        self._gear = jnp.asarray(b.gear, jnp.float32)
+        self._lo = jnp.asarray(b.joint_range[:, 0], jnp.float32)
+        self._hi = jnp.asarray(b.joint_range[:, 1], jnp.float32)
+        self._h_stand = self._stand_height()
+        self._pause_s = self.cfg.pause_s if self.cfg.init == "stand" else 0.0
+
+    # ----------------------------------------------------------------- host-side helpers
+    def _stand_height(self) -> float:
+        """Pelvis CoM height [m] above flat ground in the standing keyframe."""
+        import mujoco
+
+        d = mujoco.MjData(self.biped.mj_model)
+        d.qpos[:] = self.biped.stand_qpos
+        mujoco.mj_kinematics(self.biped.mj_model, d)
+        return float(d.xipos[self.biped.pelvis_body, 2])
+
+    @property
+    def observation_size(self) -> int:
+        sh = self.cfg.shape
+        return STATE_SIZE + sh.grid_forward * sh.grid_lateral + (3 if self.cfg.detector_one_hot else 0)
+
+    @property
+    def action_size(self) -> int:
+        return 12
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    @property
+    def dt(self) -> float:
+        return self.biped.dt_s
+
+    # ----------------------------------------------------------------- jittable pieces
+    def track_arrays(self, track_id, difficulty):
+        """Boxes (C, 6), artifact starts/ends/kinds (A,) and finish x of bank track `track_id`."""
+        bk = self._bank
+        seg = bk["segments"][track_id]
+        boxes = terrain.segment_boxes(seg, difficulty, bk["origin"][track_id], bk["width"][track_id],
+                                      self.bank.thickness_m, xp=jnp)
+        a0, a1, finish = terrain.artifact_extents(
+            seg, bk["codes"][track_id], bk["spans"][track_id], difficulty, bk["origin"][track_id],
+            bk["after"][track_id], xp=jnp)
+        return boxes, a0, a1, bk["codes"][track_id], finish
+
+    def pd_ctrl(self, data: mjx.Data) -> jnp.ndarray:
+        """Actions of a PD controller holding the standing keyframe (scripted standing)."""
+        q = data.qpos[self.biped.qpos_adr]
+        qd = data.qvel[self.biped.dof_adr]
+        tau = self._kp * (self._stand_q - q) - self._kd * qd
+        return jnp.clip(tau / self._gear, -1.0, 1.0)
+
+    def reset(self, rng: jax.Array, difficulty=None, track_id=None) -> State:
+        """A new episode; `difficulty` (traced ok) defaults to the config's, `track_id` to random."""
+        rng, k_track, k_q = jax.random.split(rng, 3)
+        if difficulty is None:
+            difficulty = self.cfg.difficulty
+        difficulty = jnp.asarray(difficulty, jnp.float32)
+        if track_id is None:
+            track_id = jax.random.randint(k_track, (), 0, self.bank.size)
+        boxes, a0, a1, codes, finish = self.track_arrays(track_id, difficulty)
+        m = model_lib.with_boxes(self.biped.mjx_model, self.biped.box_start, boxes)
+        b = self.biped
+        qpos = jnp.asarray(b.stand_qpos, jnp.float32)
+        if self.cfg.init == "random":
+            half = 0.5 * (self._hi - self._lo) * self.cfg.random_joint_scale
+            q = self._stand_q + jax.random.uniform(k_q, (12,), minval=-1.0, maxval=1.0) * half
+            qpos = qpos.at[b.qpos_adr].set(jnp.clip(q, self._lo, self._hi))
+        data = self._data0.replace(qpos=qpos, qvel=jnp.zeros_like(self._data0.qvel),
+                                   ctrl=jnp.zeros_like(self._data0.ctrl))
+        data = mjx.kinematics(m, data)
+        # Lift or lower the robot so its lowest sole sits 1 mm above the ground beneath it.
+        soles = data.geom_xpos[b.sole_geoms.reshape(-1)]
+        ground = terrain_height(boxes, soles[:, :2])
+        clearance = jnp.min(soles[:, 2] - 0.02 - ground)
+        data = data.replace(qpos=data.qpos.at[2].add(1e-3 - clearance))
+        data = mjx.forward(m, data)
+        contact = self._contacts9(data)
+        info = {
+            "rng": rng,
+            "boxes": boxes,
+            "art_x0": a0, "art_x1": a1, "art_kind": codes, "finish_x": finish,
+            "track_id": jnp.asarray(track_id, jnp.int32),
+            "difficulty": difficulty,
+            "start_x": data.xipos[b.pelvis_body, 0],
+            "contact_prev": contact,
+            "time_s": jnp.zeros((), jnp.float32),
+            "steps": jnp.zeros((), jnp.int32),
+        }
+        obs, feat = self._observe(data, info, contact)
+        metrics = self._metrics(feat, info, fell=jnp.zeros(()), success=jnp.zeros(()))
+        zero = jnp.zeros((), jnp.float32)
+        return State(pipeline_state=data, obs=obs, reward=zero, done=zero, metrics=metrics, info=info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self._step(state, action, hold=False)
+
+    def hold_step(self, state: State) -> State:
+        """A control step of the scripted standing controller (PD on the keyframe, run at every
+        physics substep: a stiff PD held for a whole 20 ms control period goes unstable)."""
+        return self._step(state, jnp.zeros(self.action_size), hold=True)
+
+    def _step(self, state: State, action: jax.Array, hold) -> State:
+        info = dict(state.info)
+        m = model_lib.with_boxes(self.biped.mjx_model, self.biped.box_start, info["boxes"])
+        action = jnp.clip(action, -1.0, 1.0)
+        paused = (info["time_s"] < self._pause_s) | hold
+
+        def substep(d, _):
+            ctrl = jnp.where(paused, self.pd_ctrl(d), action)
+            return mjx.step(m, d.replace(ctrl=ctrl)), None
+
+        data, _ = jax.lax.scan(substep, state.pipeline_state, None, length=self.biped.n_substeps)
+        contact = self._contacts9(data)
+        info["time_s"] = info["time_s"] + self.dt
+        info["steps"] = info["steps"] + 1
+        obs, feat = self._observe(data, info, contact, prev=info["contact_prev"])
+        info["contact_prev"] = contact
+        cfg = self.cfg
+        fell = ((feat["com_height"] < cfg.fall_height_m) | (jnp.abs(feat["pitch"]) > cfg.fall_tilt_rad)
+                | (jnp.abs(feat["roll"]) > cfg.fall_tilt_rad) | (feat["com"][2] < FALL_Z_M)
+                | ~jnp.all(jnp.isfinite(data.qpos)))
+        success = (feat["com"][0] >= info["finish_x"]) & ~fell
+        reward = self._reward(feat, action, fell, paused)
+        done = (fell | success).astype(jnp.float32)
+        metrics = self._metrics(feat, info, fell=fell.astype(jnp.float32),
+                                success=success.astype(jnp.float32))
+        return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done,
+                             metrics=metrics, info=info)
+
+    # ----------------------------------------------------------------- features
+    def _contacts9(self, data) -> jnp.ndarray:
+        c8 = sole_contacts(data, self.biped.sole_geoms)
+        return jnp.concatenate([c8, (jnp.sum(c8) == 0).astype(jnp.float32)[None]])
+
+    def _observe(self, data, info, contact, prev=None):
+        b = self.biped
+        com = data.xipos[b.pelvis_body]
+        xmat = data.xmat[b.pelvis_body]
+        yaw, pitch, roll = _euler(xmat)
+        ang_vel = xmat @ data.qvel[3:6]  # free joint: angular velocity is in the body frame
+        lin_vel = data.qvel[0:3] + jnp.cross(ang_vel, com - data.xpos[b.pelvis_body])
+        depth = self.cfg.heightmap.depth_m
+        ground = terrain_height(info["boxes"], com[None, :2])[0]
+        height = jnp.clip(com[2] - ground, -depth, depth)
+        hmap = heightmap(info["boxes"], com, yaw, depth, self.cfg.heightmap.max_boxes, self._offsets)
+        prev = contact if prev is None else prev
+        state = jnp.concatenate([
+            data.qpos[b.qpos_adr], data.qvel[b.dof_adr], contact, prev, lin_vel, ang_vel,
+            pitch[None], roll[None], height[None]]).astype(jnp.float32)
+        det = self.detect(info, com[0])
+        parts = [state, hmap.reshape(-1).astype(jnp.float32)]
+        if self.cfg.detector_one_hot:
+            parts.append(jax.nn.one_hot(det["kind"], len(terrain.ARTIFACT_KINDS)))
+        feat = {"com": com, "lin_vel": lin_vel, "yaw": yaw, "pitch": pitch, "roll": roll,
+                "com_height": height, "detect": det}
+        return jnp.concatenate(parts), feat
+
+    def detect(self, info, x):
+        """Oracle detector: the next artifact not yet passed, and its kind once its start is
+        within `detect_range_m` of the body (else kind -1). Distances in metres along x."""
+        ahead = info["art_x1"] >= x
+        nxt = jnp.argmax(ahead)  # first artifact whose end is still ahead
+        valid = ahead[nxt] & (info["art_kind"][nxt] >= 0)
+        dist = info["art_x0"][nxt] - x
+        seen = valid & (dist <= self.cfg.detect_range_m)
+        return {"index": jnp.where(valid, nxt, -1), "kind": jnp.where(seen, info["art_kind"][nxt], -1),
+                "dist_m": jnp.where(valid, dist, jnp.inf)}
+
+    def _reward(self, feat, action, fell, paused):
+        w = self.cfg.reward
+        target = jnp.where(paused, 0.0, self.cfg.target_speed_mps)
+        vx = feat["lin_vel"][0]
+        r = (w.progress * jnp.minimum(vx, target)
+             + w.speed * jnp.exp(-((vx - target) ** 2) / 0.1)
+             + w.alive
+             + w.upright * jnp.cos(feat["pitch"]) * jnp.cos(feat["roll"])
+             + w.height * jnp.exp(-((feat["com_height"] - self._h_stand) ** 2) / 0.01)
+             - w.lateral * (jnp.abs(feat["com"][1]) + jnp.abs(feat["yaw"]))
+             - w.torque * jnp.mean(action ** 2)
+             - w.fall * fell)
+        return r.astype(jnp.float32)
+
+    def _metrics(self, feat, info, fell, success):
+        x = feat["com"][0]
+        span = jnp.maximum(info["finish_x"] - info["start_x"], 1e-6)
+        passed = jnp.sum((info["art_x1"] < x) & (info["art_kind"] >= 0))
+        # On a fall, blame the artifact whose [start - detect range, end + finish_after] holds x.
+        near = ((info["art_x0"] - self.cfg.detect_range_m <= x)
+                & (x <= info["art_x1"] + self.terrain_cfg.finish_after_m) & (info["art_kind"] >= 0))
+        blamed = jnp.where(jnp.any(near), info["art_kind"][jnp.argmax(near)], -1)
+        return {
+            "distance_m": (x - info["start_x"]).astype(jnp.float32),
+            "progress_frac": jnp.clip((x - info["start_x"]) / span, 0.0, 1.0).astype(jnp.float32),
+            "artifacts_passed": passed.astype(jnp.float32),
+            "success": jnp.asarray(success, jnp.float32),
+            "fell": jnp.asarray(fell, jnp.float32),
+            "fail_kind": jnp.where(fell > 0, blamed, -1).astype(jnp.float32),
+            "detected_kind": feat["detect"]["kind"].astype(jnp.float32),
+        }
+
+
+def make_env(kind: str = "walk", init: str = "stand", **overrides) -> BipedEnv:
+    """Convenience: a BipedEnv on `kind` tracks with env-config overrides (e.g. n_tracks=8)."""
+    cfg = default_env_config()
+    cfg.kind, cfg.init = kind, init
+    for k, v in overrides.items():
+        if k not in cfg:
+            raise KeyError(f"unknown env config key {k!r}")
+        cfg[k] = v
+    return BipedEnv(cfg)
+
