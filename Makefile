@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-all bench bench-1art wheels gpu-bench clean
+.PHONY: install demo test test-all bench bench-1art train train-all render-deps wheels clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,6 +29,23 @@ bench: $(STAMP)
 
 bench-1art: $(STAMP)  ## same, on 1-artifact tracks (cost must not grow with track length)
 	$(PY) -m biped_switch.bench --batch 256 --kind mixed --n-artifacts 1 --json
+
+# Policies (issue 3). TRAIN_ARGS e.g. "--preset cpu --total-steps 2000000" on a CPU machine.
+# Each run resumes from its last checkpoint under runs/<policy>_<init>/.
+POLICY ?= walk
+INIT   ?= stand
+TRAIN_ARGS ?=
+train: $(STAMP)
+	$(PY) -m biped_switch.train --policy $(POLICY) --init $(INIT) $(TRAIN_ARGS)
+
+train-all: $(STAMP)
+	for init in stand random; do for p in walk jumps gaps stairs; do \
+	  $(PY) -m biped_switch.train --policy $$p --init $$init $(TRAIN_ARGS) || exit 1; done; done
+
+# Offscreen rendering on a CPU host: OSMesa (Debian's libosmesa6). A GPU host uses EGL.
+render-deps:
+	@ldconfig -p | grep -q libOSMesa || (apt-get install -y -q libosmesa6 || \
+	  (apt-get update -q && apt-get install -y -q libosmesa6))
 
 # Wheels for the GPU host (Python 3.12, jax 0.11.2, flax/optax/orbax preinstalled, no network):
 # everything else it needs, into the git-ignored .whl/ (about 30 MB). See scripts/gpu_run.sh.

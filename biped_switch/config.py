@@ -50,6 +50,8 @@ def default_env_config() -> config_dict.ConfigDict:
         n_tracks=256,  # tracks in the bank; reset picks one at random
         seed=0,  # seed of the bank's first track (track i has seed + i)
         difficulty=1.0,  # traced: the curriculum changes it without recompiling
+        guide_scale=0.0,  # traced: guided-curriculum guide forces (gait.py), 0 = none
+        push_scale=0.0,  # traced: random pushes, fraction of curriculum max_push_N
         init="stand",  # "stand": keyframe + pause (RoA overlap), "random": random joints, no pause
         pause_s=0.5,
         random_joint_scale=0.5,  # "random" init: fraction of each joint's range around the keyframe
@@ -66,7 +68,7 @@ def default_env_config() -> config_dict.ConfigDict:
             upright=0.5,  # cos(pitch) * cos(roll)
             height=0.5,  # exp(-(h - h_stand)^2 / 0.01)
             lateral=0.5,  # penalty on |y| drift and |yaw|
-            torque=0.002,  # penalty on mean squared action * gear (Nm^2 scaled)
+            torque=0.1,  # penalty on mean(a^2), a = torque as a fraction of its limit
             fall=10.0,  # one-off penalty on a fall
         ),
         shape=config_dict.create(
@@ -81,4 +83,39 @@ def default_env_config() -> config_dict.ConfigDict:
             depth_m=2.0,  # value 1 at this depth below the CoM
             max_boxes=12,  # boxes nearest the body that the lookup tests (see heightmap.py)
         ),
+    )
+
+
+def default_gait_config() -> config_dict.ConfigDict:
+    """The scripted gait and the guide gains (see gait.py)."""
+    return config_dict.create(
+        period_s=0.8,
+        hip_amp_rad=0.35,
+        knee_amp_rad=0.6,
+        kp_per_gear=2.0,  # joint guide stiffness [Nm/rad] per Nm of motor limit
+        kd_ratio=0.05,  # damping [Nm s/rad] = kd_ratio * stiffness
+        k_speed=150.0,  # [N per m/s]
+        k_lateral=300.0,  # [N/m]
+        d_lateral=60.0,  # [N s/m]
+        k_height=1500.0,  # [N/m]; the pelvis block alone weighs 118 N
+        d_height=150.0,  # [N s/m]
+        k_tilt=400.0,  # [Nm/rad]
+        d_tilt=40.0,  # [Nm s/rad]
+        k_yaw=100.0,  # [Nm/rad]
+        d_yaw=20.0,  # [Nm s/rad]
+    )
+
+
+def default_curriculum_config() -> config_dict.ConfigDict:
+    """Guided curriculum (Tidd et al.): terrain up with guides, guides down, pushes up."""
+    return config_dict.create(
+        reward_milestone=0.7,  # advance when mean episode reward per step >= this fraction ...
+        reward_per_step_max=5.4,  # ... of the best possible (3*0.8 + 1 + 1 + 0.5 + 0.5)
+        min_progress=0.0,  # and mean progress_frac >= this (0 disables)
+        difficulty_step=0.1,
+        guide_step=0.1,
+        push_step=0.1,
+        max_push_N=150.0,  # push force at push_scale 1
+        push_duration_s=0.2,
+        push_interval_s=2.0,  # mean time between pushes
     )

@@ -27,6 +27,11 @@ Reward per control step (weights in config.reward; the spirit of Tidd et al.'s g
 reward): progress * min(vx, v*) + speed * exp(-(vx - v*)^2 / 0.1) + alive + upright * cos(pitch)
 cos(roll) + height * exp(-(h - h_stand)^2 / 0.01) - lateral * (|y| + |yaw|) - torque * mean(a^2)
 - fall * [fell], where v* is the target speed (0 during the pause) and vx the CoM x velocity.
+Guided curriculum hooks (traced values in `state.info`, set at reset, kept across steps):
+`guide_scale` scales the scripted gait's joint PD torques (qfrc_applied) and the CoM-steadying
+wrench on the pelvis (xfrc_applied), see gait.py; `push_scale` scales random horizontal pushes of
+up to `max_push_N` lasting `push_duration_s`, every `push_interval_s` on average. Both default to 0.
+
 Termination: a fall (h < fall_height_m, |pitch| or |roll| > fall_tilt_rad, or the CoM below
 fall_z_m, i.e. into a gap or off the track) or reaching the finish line (success).
 """
@@ -39,9 +44,11 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
+from biped_switch import gait
 from biped_switch import model as model_lib
 from biped_switch import terrain
-from biped_switch.config import default_env_config, default_model_config, default_terrain_config
+from biped_switch.config import (default_curriculum_config, default_env_config, default_gait_config,
+                                 default_model_config, default_terrain_config)
 from biped_switch.heightmap import cell_offsets, heightmap, terrain_height
 
 STATE_SIZE = 51
@@ -81,8 +88,11 @@ def sole_contacts(data: mjx.Data, sole_geoms: np.ndarray) -> jnp.ndarray:
 class BipedEnv(Env):
     """See the module docstring. Configs: env (traced values + `shape`), model, terrain."""
 
-    def __init__(self, env_cfg=None, model_cfg=None, terrain_cfg=None, biped=None, tracks=None):
+    def __init__(self, env_cfg=None, model_cfg=None, terrain_cfg=None, biped=None, tracks=None,
+                 gait_cfg=None, curriculum_cfg=None):
         self.cfg = env_cfg or default_env_config()
+        self.gait_cfg = gait_cfg or default_gait_config()
+        self.curriculum_cfg = curriculum_cfg or default_curriculum_config()
         self.terrain_cfg = terrain_cfg or default_terrain_config()
         self.model_cfg = model_cfg or default_model_config()
         if self.cfg.init not in INITS:
@@ -158,11 +168,15 @@ class BipedEnv(Env):
         tau = self._kp * (self._stand_q - q) - self._kd * qd
         return jnp.clip(tau / self._gear, -1.0, 1.0)
 
-    def reset(self, rng: jax.Array, difficulty=None, track_id=None) -> State:
-        """A new episode; `difficulty` (traced ok) defaults to the config's, `track_id` to random."""
+    def reset(self, rng: jax.Array, difficulty=None, track_id=None, guide_scale=None,
+              push_scale=None) -> State:
+        """A new episode; `difficulty` (traced ok) defaults to the config's, `track_id` to random;
+        `guide_scale` and `push_scale` (traced ok) are the curriculum's guide and push levels."""
         rng, k_track, k_q = jax.random.split(rng, 3)
         if difficulty is None:
             difficulty = self.cfg.difficulty
+        guide_scale = self.cfg.guide_scale if guide_scale is None else guide_scale
+        push_scale = self.cfg.push_scale if push_scale is None else push_scale
         difficulty = jnp.asarray(difficulty, jnp.float32)
         if track_id is None:
             track_id = jax.random.randint(k_track, (), 0, self.bank.size)
@@ -192,6 +206,10 @@ class BipedEnv(Env):
             "difficulty": difficulty,
             "start_x": data.xipos[b.pelvis_body, 0],
             "contact_prev": contact,
+            "guide_scale": jnp.asarray(guide_scale, jnp.float32),
+            "push_scale": jnp.asarray(push_scale, jnp.float32),
+            "push_force": jnp.zeros(3, jnp.float32),  # world-frame force of the current push [N]
+            "push_left_s": jnp.zeros((), jnp.float32),
             "time_s": jnp.zeros((), jnp.float32),
             "steps": jnp.zeros((), jnp.int32),
         }
@@ -210,15 +228,36 @@ class BipedEnv(Env):
 
     def _step(self, state: State, action: jax.Array, hold) -> State:
         info = dict(state.info)
-        m = model_lib.with_boxes(self.biped.mjx_model, self.biped.box_start, info["boxes"])
+        b = self.biped
+        m = model_lib.with_boxes(b.mjx_model, b.box_start, info["boxes"])
         action = jnp.clip(action, -1.0, 1.0)
         paused = (info["time_s"] < self._pause_s) | hold
+        walk_t = info["time_s"] - self._pause_s
+        q_ref = jnp.where(walk_t >= 0, gait.reference(walk_t, self._stand_q, self.gait_cfg),
+                          self._stand_q)
+        target = jnp.where(paused, 0.0, self.cfg.target_speed_mps)
+        guide = jnp.where(paused, 0.0, info["guide_scale"])
+        info["rng"], push_force, info["push_left_s"] = self._push(info)
+        info["push_force"] = push_force
+
+        # The CoM wrench is a soft spring-damper (about 7 rad/s): held over the control period.
+        # The joint PDs are stiff, so they are evaluated at every physics substep.
+        f = self._features(state.pipeline_state, info["boxes"])
+        wrench = guide * gait.com_guide(f["com"], f["lin_vel"], f["ang_vel"], f["yaw"], f["pitch"],
+                                        f["roll"], f["com_height"], target, self._h_stand,
+                                        self.gait_cfg)
+        xfrc = jnp.zeros_like(state.pipeline_state.xfrc_applied).at[b.pelvis_body].set(
+            wrench.at[:3].add(push_force))
 
         def substep(d, _):
             ctrl = jnp.where(paused, self.pd_ctrl(d), action)
-            return mjx.step(m, d.replace(ctrl=ctrl)), None
+            q, qd = d.qpos[b.qpos_adr], d.qvel[b.dof_adr]
+            tau = guide * gait.joint_guide(q, qd, q_ref, self._gear, self.gait_cfg)
+            d = d.replace(ctrl=ctrl, xfrc_applied=xfrc,
+                          qfrc_applied=jnp.zeros_like(d.qfrc_applied).at[b.dof_adr].set(tau))
+            return mjx.step(m, d), None
 
-        data, _ = jax.lax.scan(substep, state.pipeline_state, None, length=self.biped.n_substeps)
+        data, _ = jax.lax.scan(substep, state.pipeline_state, None, length=b.n_substeps)
         contact = self._contacts9(data)
         info["time_s"] = info["time_s"] + self.dt
         info["steps"] = info["steps"] + 1
@@ -236,12 +275,26 @@ class BipedEnv(Env):
         return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done,
                              metrics=metrics, info=info)
 
+    def _push(self, info):
+        """Random pushes: start one with probability dt / interval when none is running."""
+        c = self.curriculum_cfg
+        rng, k_start, k_dir = jax.random.split(info["rng"], 3)
+        start = ((jax.random.uniform(k_start) < self.dt / c.push_interval_s)
+                 & (info["push_left_s"] <= 0.0) & (info["push_scale"] > 0.0))
+        angle = jax.random.uniform(k_dir, maxval=2 * jnp.pi)
+        new = info["push_scale"] * c.max_push_N * jnp.array([jnp.cos(angle), jnp.sin(angle), 0.0])
+        running = info["push_left_s"] > 0.0
+        force = jnp.where(start, new, jnp.where(running, info["push_force"], 0.0))
+        left = jnp.where(start, c.push_duration_s, jnp.maximum(info["push_left_s"] - self.dt, 0.0))
+        return rng, force.astype(jnp.float32), left.astype(jnp.float32)
+
     # ----------------------------------------------------------------- features
     def _contacts9(self, data) -> jnp.ndarray:
         c8 = sole_contacts(data, self.biped.sole_geoms)
         return jnp.concatenate([c8, (jnp.sum(c8) == 0).astype(jnp.float32)[None]])
 
-    def _observe(self, data, info, contact, prev=None):
+    def _features(self, data, boxes):
+        """Pelvis CoM position, velocities (world frame), Euler angles and height above terrain."""
         b = self.biped
         com = data.xipos[b.pelvis_body]
         xmat = data.xmat[b.pelvis_body]
@@ -249,19 +302,25 @@ class BipedEnv(Env):
         ang_vel = xmat @ data.qvel[3:6]  # free joint: angular velocity is in the body frame
         lin_vel = data.qvel[0:3] + jnp.cross(ang_vel, com - data.xpos[b.pelvis_body])
         depth = self.cfg.heightmap.depth_m
-        ground = terrain_height(info["boxes"], com[None, :2])[0]
+        ground = terrain_height(boxes, com[None, :2])[0]
         height = jnp.clip(com[2] - ground, -depth, depth)
-        hmap = heightmap(info["boxes"], com, yaw, depth, self.cfg.heightmap.max_boxes, self._offsets)
+        return {"com": com, "lin_vel": lin_vel, "ang_vel": ang_vel, "yaw": yaw, "pitch": pitch,
+                "roll": roll, "com_height": height}
+
+    def _observe(self, data, info, contact, prev=None):
+        b = self.biped
+        feat = self._features(data, info["boxes"])
+        hmap = heightmap(info["boxes"], feat["com"], feat["yaw"], self.cfg.heightmap.depth_m,
+                         self.cfg.heightmap.max_boxes, self._offsets)
         prev = contact if prev is None else prev
         state = jnp.concatenate([
-            data.qpos[b.qpos_adr], data.qvel[b.dof_adr], contact, prev, lin_vel, ang_vel,
-            pitch[None], roll[None], height[None]]).astype(jnp.float32)
-        det = self.detect(info, com[0])
+            data.qpos[b.qpos_adr], data.qvel[b.dof_adr], contact, prev, feat["lin_vel"],
+            feat["ang_vel"], feat["pitch"][None], feat["roll"][None],
+            feat["com_height"][None]]).astype(jnp.float32)
+        feat["detect"] = self.detect(info, feat["com"][0])
         parts = [state, hmap.reshape(-1).astype(jnp.float32)]
         if self.cfg.detector_one_hot:
-            parts.append(jax.nn.one_hot(det["kind"], len(terrain.ARTIFACT_KINDS)))
-        feat = {"com": com, "lin_vel": lin_vel, "yaw": yaw, "pitch": pitch, "roll": roll,
-                "com_height": height, "detect": det}
+            parts.append(jax.nn.one_hot(feat["detect"]["kind"], len(terrain.ARTIFACT_KINDS)))
         return jnp.concatenate(parts), feat
 
     def detect(self, info, x):

@@ -1,0 +1,62 @@
+"""The guided curriculum as a pure function: (curriculum state, episode stats) -> new state.
+
+Three stages, each advanced one notch whenever a milestone of average episode reward is reached
+(Tidd et al., "Guided Curriculum Learning for Walking Over Complex Terrain"):
+  0 terrain   difficulty rises 0 -> 1 while the guide forces help (guide_scale = 1);
+  1 guides    at full difficulty, guide_scale anneals 1 -> 0;
+  2 pushes    random pushes grow, push_scale 0 -> 1.
+A stage ends when its value reaches its end and one more milestone is met there.
+The state is a small pytree of scalars: it is logged, saved with every checkpoint, restored on
+resume, and enters the environment as traced values, so a stage change never recompiles.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from biped_switch.config import default_curriculum_config
+
+STAGES = ("terrain", "guides", "pushes")
+
+
+class CurriculumState(NamedTuple):
+    stage: int | jnp.ndarray = 0
+    difficulty: float | jnp.ndarray = 0.0
+    guide_scale: float | jnp.ndarray = 1.0
+    push_scale: float | jnp.ndarray = 0.0
+
+    def as_dict(self) -> dict:
+        return {"stage": int(self.stage), "stage_name": STAGES[int(self.stage)],
+                "difficulty": float(self.difficulty), "guide_scale": float(self.guide_scale),
+                "push_scale": float(self.push_scale)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CurriculumState":
+        return cls(int(d["stage"]), float(d["difficulty"]), float(d["guide_scale"]),
+                   float(d["push_scale"]))
+
+
+def milestone(reward_per_step, progress_frac, cfg=None):
+    """True when the mean episode reward per step (and progress, if asked) meets the milestone."""
+    cfg = cfg or default_curriculum_config()
+    ok = reward_per_step >= cfg.reward_milestone * cfg.reward_per_step_max
+    return ok & (progress_frac >= cfg.min_progress)
+
+
+def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None) -> CurriculumState:
+    """Advances one notch of the current stage when the milestone is met; pure and jittable."""
+    cfg = cfg or default_curriculum_config()
+    hit = milestone(reward_per_step, progress_frac, cfg)
+    stage = jnp.asarray(cs.stage)
+    in_terrain, in_guides, in_pushes = stage == 0, stage == 1, stage == 2
+    at_full = cs.difficulty >= 1.0 - 1e-6
+    guides_off = cs.guide_scale <= 1e-6
+    difficulty = jnp.where(hit & in_terrain, jnp.minimum(cs.difficulty + cfg.difficulty_step, 1.0),
+                           cs.difficulty)
+    guide = jnp.where(hit & in_guides, jnp.maximum(cs.guide_scale - cfg.guide_step, 0.0),
+                      cs.guide_scale)
+    push = jnp.where(hit & in_pushes, jnp.minimum(cs.push_scale + cfg.push_step, 1.0), cs.push_scale)
+    stage = jnp.where(hit & in_terrain & at_full, 1, jnp.where(hit & in_guides & guides_off, 2, stage))
+    return CurriculumState(stage, difficulty, guide, push)

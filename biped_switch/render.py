@@ -1,0 +1,131 @@
+"""Render a rollout to a GIF (or MP4) with MuJoCo's offscreen renderer.
+
+    python -m biped_switch.render --policy stairs [--init stand] [--seconds 8] [--out clip.gif]
+    python -m biped_switch.render --scripted --kind mixed        # the scripted standing controller
+
+The rollout runs in the MJX environment; its joint trajectory is then replayed on a CPU MuJoCo
+model compiled with that episode's boxes and drawn by a camera that follows the pelvis. Needs an
+OpenGL backend: EGL on a GPU host, OSMesa on a CPU host (`MUJOCO_GL=osmesa`, Debian's libosmesa6;
+`make render-deps` installs it). A `.mp4` output needs imageio-ffmpeg; `.gif` needs only Pillow.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import sys
+
+import numpy as np
+
+
+def _gl_default() -> None:
+    if "MUJOCO_GL" not in os.environ:
+        os.environ["MUJOCO_GL"] = "egl" if os.path.exists("/dev/nvidia0") else "osmesa"
+    if os.environ["MUJOCO_GL"] == "osmesa":
+        os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+
+
+def record(env, act, seconds: float, seed: int = 0, track_id: int = 0):
+    """(qpos per control step (T, nq), boxes (C, 6), metrics) of one episode; `act` None = scripted."""
+    import jax
+
+    reset = jax.jit(lambda k: env.reset(k, track_id=track_id))
+    step = jax.jit(env.hold_step if act is None else
+                   (lambda s, k: env.step(s, act(s.obs[None], k)[0])))
+    state = reset(jax.random.PRNGKey(seed))
+    qpos, key = [np.asarray(state.pipeline_state.qpos)], jax.random.PRNGKey(seed + 1)
+    for _ in range(int(round(seconds / env.dt))):
+        key, k = jax.random.split(key)
+        state = step(state) if act is None else step(state, k)
+        qpos.append(np.asarray(state.pipeline_state.qpos))
+        if float(state.done) > 0:
+            break
+    return np.stack(qpos), np.asarray(state.info["boxes"]), {k: float(v) for k, v in state.metrics.items()}
+
+
+def frames(qpos: np.ndarray, boxes: np.ndarray, width: int = 480, height: int = 320,
+           every: int = 2) -> list[np.ndarray]:
+    """RGB frames of a qpos trajectory on a CPU model holding `boxes`, side-on tracking camera.
+    Call `_gl_default()` (or set MUJOCO_GL) before mujoco is first imported."""
+    import mujoco
+
+    from biped_switch.model import compile_mj_model
+
+    m = compile_mj_model(None, boxes)
+    d = mujoco.MjData(m)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.distance, cam.azimuth, cam.elevation = 3.2, 90.0, -12.0
+    out = []
+    renderer = mujoco.Renderer(m, height, width)
+    try:
+        for q in qpos[::every]:
+            d.qpos[:] = q
+            mujoco.mj_forward(m, d)
+            cam.lookat[:] = [q[0] + 0.3, 0.0, 0.6]
+            renderer.update_scene(d, camera=cam)
+            out.append(renderer.render().copy())
+    finally:
+        renderer.close()
+    return out
+
+
+def write(images: list[np.ndarray], path: pathlib.Path, fps: float) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix == ".mp4":
+        import imageio.v2 as imageio  # needs imageio-ffmpeg
+
+        imageio.mimwrite(path, images, fps=fps)
+        return
+    from PIL import Image
+
+    pics = [Image.fromarray(im) for im in images]
+    pics[0].save(path, save_all=True, append_images=pics[1:], duration=int(1000 / fps), loop=0)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m biped_switch.render", description=__doc__.split("\n")[0])
+    p.add_argument("--policy", default=None, help="walk, jumps, gaps or stairs (trained)")
+    p.add_argument("--init", default="stand")
+    p.add_argument("--scripted", action="store_true", help="scripted standing controller, no policy")
+    p.add_argument("--kind", default=None, help="terrain kind (default: the policy's)")
+    p.add_argument("--runs", default="runs")
+    p.add_argument("--seconds", type=float, default=8.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    if not a.scripted and a.policy is None:
+        p.error("give --policy NAME or --scripted")
+    _gl_default()  # before anything imports mujoco
+    import jax
+
+    from biped_switch import env as env_lib
+    from biped_switch import evaluate, train as train_lib
+
+    kind = a.kind or a.policy or "mixed"
+    ecfg = env_lib.default_env_config()
+    ecfg.kind, ecfg.init, ecfg.n_tracks, ecfg.seed = kind, a.init, 1, evaluate.EVAL_TRACK_SEED + a.seed
+    env = env_lib.BipedEnv(ecfg)
+    act = None
+    if not a.scripted:
+        ckpt = evaluate.find_policy(a.policy, a.init, pathlib.Path(a.runs))
+        if ckpt is None:
+            p.error(f"no trained {a.policy}/{a.init} policy under {a.runs}/ or models/policies/")
+        params, _ = train_lib.load_checkpoint(ckpt)
+        cfg = train_lib.default_train_config()
+        import json
+
+        run_cfg = json.loads((ckpt.parent.parent / "config.json").read_text())
+        cfg.network.update(**{k: tuple(v) for k, v in run_cfg["network"].items()})
+        act = train_lib.make_inference(cfg, env, params)
+    qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
+    fps = 1.0 / (2 * env.dt)
+    out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")
+    write(frames(qpos, boxes), out, fps)
+    print(f"wrote {out} ({len(qpos)} steps, {jax.devices()[0].platform}); final metrics {metrics}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

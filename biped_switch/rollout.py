@@ -1,0 +1,53 @@
+"""Batched fixed-horizon rollouts of a policy, with each episode frozen once it ends.
+
+One pure function serves the curriculum's milestone checks during training and the evaluations:
+`rollout(env, policy, rng, n_envs, horizon)` runs `n_envs` episodes for `horizon` control steps
+under `jax.lax.scan` and returns per-episode totals and final metrics. An episode that ends (fall or
+finish) stops accumulating reward and keeps the metrics of its last live step.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+
+PolicyFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs batch, rng) -> action batch
+
+
+def rollout(env, policy: PolicyFn, rng: jax.Array, n_envs: int, horizon: int,
+            track_ids: jax.Array | None = None) -> dict:
+    """Per-episode `reward` (sum), `length` (live steps), `done`, and every final metric.
+
+    `track_ids` (n_envs,) picks each episode's track from the env's bank; default: random."""
+    k_reset, k_run = jax.random.split(rng)
+    keys = jax.random.split(k_reset, n_envs)
+    if track_ids is None:
+        state = jax.vmap(env.reset)(keys)
+    else:
+        state = jax.vmap(lambda k, i: env.reset(k, track_id=i))(keys, track_ids)
+
+    def body(carry, key):
+        state, total, length, ended, metrics = carry
+        action = policy(state.obs, key)
+        nxt = jax.vmap(env.step)(state, action)
+        live = 1.0 - ended
+        total = total + live * nxt.reward
+        length = length + live
+        metrics = jax.tree.map(lambda new, old: jnp.where(ended > 0, old, new), nxt.metrics, metrics)
+        ended = jnp.maximum(ended, nxt.done)
+        return (nxt, total, length, ended, metrics), None
+
+    zeros = jnp.zeros(n_envs)
+    carry = (state, zeros, zeros, zeros, state.metrics)
+    (state, total, length, ended, metrics), _ = jax.lax.scan(
+        body, carry, jax.random.split(k_run, horizon))
+    return {"reward": total, "length": length, "done": ended, **metrics}
+
+
+def summarize(result: dict, horizon: int) -> dict:
+    """Means over episodes; `reward_per_step` divides by the full horizon (a fall scores 0 after)."""
+    out = {k: float(jnp.mean(v)) for k, v in result.items()}
+    out["reward_per_step"] = float(jnp.mean(result["reward"]) / horizon)
+    return out
