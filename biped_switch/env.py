@@ -11,6 +11,7 @@ Observation = robot state (51) + heightmap (60 x 40, flattened row-major, rows r
          knee, ankle pitch, roll)
   12:24  joint velocities [rad/s]
   24:33  foot contacts now: left fl, fr, bl, br, right fl, fr, bl, br, then 1 if no point touches
+         (the contacts the solver used in the control step's last physics substep, 5 ms earlier)
   33:42  the same one control step earlier
   42:45  pelvis CoM linear velocity, world frame [m/s]
   45:48  pelvis angular velocity, world frame [rad/s]
@@ -26,7 +27,8 @@ of states (the paper's RoA overlap); `random` starts from random joint angles wi
 Reward per control step (weights in config.reward; the spirit of Tidd et al.'s guided-curriculum
 reward): progress * min(vx, v*) + speed * exp(-(vx - v*)^2 / 0.1) + alive + upright * cos(pitch)
 cos(roll) + height * exp(-(h - h_stand)^2 / 0.01) - lateral * (|y| + |yaw|) - torque * mean(a^2)
-- fall * [fell], where v* is the target speed (0 during the pause) and vx the CoM x velocity.
+- fall * [fell], where v* is the target speed (0 during the pause), vx the CoM x velocity and a the
+action (0 during the pause, when the PD hold acts instead).
 Guided curriculum hooks (traced values in `state.info`, set at reset, kept across steps):
 `guide_scale` scales the scripted gait's joint PD torques (qfrc_applied) and the CoM-steadying
 wrench on the pelvis (xfrc_applied), see gait.py; `push_scale` scales random horizontal pushes of
@@ -65,7 +67,18 @@ STATE_SLICES = {
 }
 INITS = ("stand", "random")
 FALL_Z_M = -0.2  # CoM below the track surface (z = 0 on flats): fell into a gap or off the side
-CONTACT_DIST_M = 1e-3  # a sole sphere touches when its signed distance is below this
+CONTACT_DIST_M = 0.0  # a sole touches when the solver has a contact: signed distance < 0 (MJX's
+# sphere-box collider reports dist = 1 for any separated pair, so no positive margin is possible)
+
+
+def _quat_to_mat(q):
+    """Rotation matrix of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = q / jnp.linalg.norm(q)
+    return jnp.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
 
 
 def _euler(xmat):
@@ -77,7 +90,7 @@ def _euler(xmat):
 
 
 def sole_contacts(data: mjx.Data, sole_geoms: np.ndarray) -> jnp.ndarray:
-    """(8,) 1.0 where a sole sphere touches the terrain, from the (culled) contact list."""
+    """(8,) 1.0 where a sole sphere touches (penetrates) the terrain, from the culled contacts."""
     c = data._impl.contact
     active = c.dist < CONTACT_DIST_M
     g = jnp.asarray(sole_geoms.reshape(-1))
@@ -120,6 +133,9 @@ class BipedEnv(Env):
         self._lo = jnp.asarray(b.joint_range[:, 0], jnp.float32)
         self._hi = jnp.asarray(b.joint_range[:, 1], jnp.float32)
         self._h_stand = self._stand_height()
+        self._pelvis_ipos = jnp.asarray(b.mj_model.body_ipos[b.pelvis_body], jnp.float32)
+        if b.mj_model.body_jntadr[b.pelvis_body] != 0 or b.mj_model.jnt_type[0] != 0:
+            raise ValueError("the pelvis must be the body of the model's first (free) joint")
         self._pause_s = self.cfg.pause_s if self.cfg.init == "stand" else 0.0
 
     # ----------------------------------------------------------------- host-side helpers
@@ -294,13 +310,15 @@ class BipedEnv(Env):
         return jnp.concatenate([c8, (jnp.sum(c8) == 0).astype(jnp.float32)[None]])
 
     def _features(self, data, boxes):
-        """Pelvis CoM position, velocities (world frame), Euler angles and height above terrain."""
-        b = self.biped
-        com = data.xipos[b.pelvis_body]
-        xmat = data.xmat[b.pelvis_body]
+        """Pelvis CoM position, velocities (world frame), Euler angles and height above terrain.
+
+        Computed from qpos/qvel of the free joint (the pelvis is its body), not from data.xipos:
+        mjx.step evaluates positions before it integrates, so xipos/xmat lag qpos by a substep."""
+        pos, xmat = data.qpos[0:3], _quat_to_mat(data.qpos[3:7])
+        com = pos + xmat @ self._pelvis_ipos
         yaw, pitch, roll = _euler(xmat)
         ang_vel = xmat @ data.qvel[3:6]  # free joint: angular velocity is in the body frame
-        lin_vel = data.qvel[0:3] + jnp.cross(ang_vel, com - data.xpos[b.pelvis_body])
+        lin_vel = data.qvel[0:3] + jnp.cross(ang_vel, com - pos)
         depth = self.cfg.heightmap.depth_m
         ground = terrain_height(boxes, com[None, :2])[0]
         height = jnp.clip(com[2] - ground, -depth, depth)
@@ -344,7 +362,7 @@ class BipedEnv(Env):
              + w.upright * jnp.cos(feat["pitch"]) * jnp.cos(feat["roll"])
              + w.height * jnp.exp(-((feat["com_height"] - self._h_stand) ** 2) / 0.01)
              - w.lateral * (jnp.abs(feat["com"][1]) + jnp.abs(feat["yaw"]))
-             - w.torque * jnp.mean(action ** 2)
+             - w.torque * jnp.mean(jnp.where(paused, 0.0, action) ** 2)  # only applied actions
              - w.fall * fell)
         return r.astype(jnp.float32)
 

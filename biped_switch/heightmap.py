@@ -11,8 +11,8 @@ Value: 0 at the CoM height, 1 at 2 m below it, clipped to [0, 1]; where no box l
 `heightmap` looks the terrain up in the box list (axis-aligned boxes, (N, 6) = centre xyz and half
 sizes xyz), a pure jnp function for one robot: vmap it for a batch. It first keeps the `max_boxes`
 boxes nearest the body in the ground plane (`lax.top_k`), then tests every cell against those only:
-exact whenever at most `max_boxes` boxes reach into the disc that the grid sweeps over any yaw
-(radius |(0.9, 0.5)| = 1.03 m), which the tests check for every generated track kind. On the 2-core
+exact whenever at most `max_boxes` boxes reach into the disc that the cell centres sweep over any
+yaw (radius `grid_radius_m()` = 1.013 m), which the tests check for every generated track kind. On the 2-core
 CPU this costs 25 us per robot with 12 boxes, against 480 us for all 96 slots; 13 or more boxes fall
 off a cache cliff (11-19 ms per batch of 256 instead of 6). `max_boxes=None` tests all boxes.
 `heightmap_raycast` computes the same grid with MuJoCo's ray caster (mj_ray), the test oracle.

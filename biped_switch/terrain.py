@@ -55,7 +55,8 @@ def segment_boxes(segments, difficulty, x_origin_m, width_m, thickness_m, xp=np)
     """One box per segment, (S, 6) = centre xyz, half sizes xyz; holes parked far below."""
     x0, x1, top = layout(segments, difficulty, x_origin_m, xp)
     solid = segments[..., SOLID] > 0.5
-    xc = 0.5 * (x0 + x1)
+    # Holes and padding are parked far away in x too, so no nearest-box search ever picks them.
+    xc = xp.where(solid, 0.5 * (x0 + x1), FAR_X_M)
     half_x = xp.where(solid, 0.5 * (x1 - x0), PARK_HALF_M)
     half_y = xp.where(solid, 0.5 * width_m, PARK_HALF_M)
     half_z = xp.where(solid, 0.5 * thickness_m, PARK_HALF_M)
