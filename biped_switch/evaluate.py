@@ -81,16 +81,12 @@ def find_policy(policy: str, init: str, runs: pathlib.Path) -> pathlib.Path | No
 def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, seed: int,
                     horizon_s: float, batch: int) -> dict:
     """Table I row: `trials` episodes of `policy` on its own terrain kind, track i for trial i."""
-    params, progress = train_lib.load_checkpoint(ckpt)
-    run_cfg = json.loads((ckpt.parent.parent / "config.json").read_text())
-    cfg = train_lib.default_train_config()
-    cfg.network.update(**{k: tuple(v) for k, v in run_cfg["network"].items()})
-    cfg.ppo.normalize_observations = run_cfg["ppo"]["normalize_observations"]
     ecfg = env_lib.default_env_config()
     ecfg.kind, ecfg.init, ecfg.n_tracks, ecfg.seed = policy, init, trials, EVAL_TRACK_SEED
     env = env_lib.BipedEnv(ecfg)  # difficulty 1, no guides, no pushes
-    run = jax.jit(functools.partial(rollout, env, train_lib.make_inference(cfg, env, params),
-                                    n_envs=batch, horizon=int(round(horizon_s / env.dt))))
+    act, progress = train_lib.load_policy(ckpt, env)
+    run = jax.jit(functools.partial(rollout, env, act, n_envs=batch,
+                                    horizon=int(round(horizon_s / env.dt))))
     results = []
     for start in range(0, trials, batch):
         ids = jax.numpy.arange(start, start + batch) % trials

@@ -112,13 +112,7 @@ def main(argv=None) -> int:
         ckpt = evaluate.find_policy(a.policy, a.init, pathlib.Path(a.runs))
         if ckpt is None:
             p.error(f"no trained {a.policy}/{a.init} policy under {a.runs}/ or models/policies/")
-        params, _ = train_lib.load_checkpoint(ckpt)
-        cfg = train_lib.default_train_config()
-        import json
-
-        run_cfg = json.loads((ckpt.parent.parent / "config.json").read_text())
-        cfg.network.update(**{k: tuple(v) for k, v in run_cfg["network"].items()})
-        act = train_lib.make_inference(cfg, env, params)
+        act, _ = train_lib.load_policy(ckpt, env)
     qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
     fps = 1.0 / (2 * env.dt)
     out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")

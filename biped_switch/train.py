@@ -28,7 +28,6 @@ import sys
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from ml_collections import config_dict
 
@@ -122,6 +121,16 @@ def make_inference(cfg, env, params, deterministic: bool = True):
 
     infer = ppo_networks.make_inference_fn(nets)((params[0], params[1]), deterministic=deterministic)
     return lambda obs, key: infer(obs, key)[0]
+
+
+def load_policy(ckpt: pathlib.Path, env, deterministic: bool = True):
+    """(batched policy, progress dict) of a checkpoint, with the network sizes its run used."""
+    params, progress = load_checkpoint(ckpt)
+    run_cfg = json.loads((ckpt.parent.parent / "config.json").read_text())
+    cfg = default_train_config()
+    cfg.network.update(**{k: tuple(v) for k, v in run_cfg["network"].items()})
+    cfg.ppo.normalize_observations = run_cfg["ppo"]["normalize_observations"]
+    return make_inference(cfg, env, params, deterministic), progress
 
 
 class Logger:

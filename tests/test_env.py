@@ -15,7 +15,7 @@ from biped_switch import heightmap as hm
 from biped_switch import model as model_lib
 from biped_switch import terrain
 
-from conftest import (B, DIFFICULTIES, TRACK_IDS, actions, batch_reset, index, with_time)
+from conftest import B, DIFFICULTIES, TRACK_IDS, actions, index
 from helpers import edge_mask, quat_to_pitch_roll_yaw, terrain_height_np
 
 SL = env_lib.STATE_SLICES
