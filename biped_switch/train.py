@@ -259,6 +259,42 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     return progress
 
 
+def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
+    """Training curves of a run (metrics.csv): episode reward and length, eval reward per step,
+    curriculum values, against environment steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+
+    def series(key):
+        pts = [(float(r["step"]), float(r[key])) for r in rows if r.get(key) not in (None, "")]
+        return np.array(pts).reshape(-1, 2)
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
+    for key, ax in (("episode/sum_reward", axes[0]), ("episode/length", axes[0].twinx())):
+        xy = series(key)
+        ax.plot(xy[:, 0], xy[:, 1], "-" if "reward" in key else ":", label=key)
+        ax.set_ylabel(key)
+    axes[0].set_title("training episodes")
+    xy = series("eval/reward_per_step")
+    axes[1].plot(xy[:, 0], xy[:, 1], "o-")
+    axes[1].set_title("milestone rollout: reward per step")
+    for key in ("difficulty", "guide_scale", "push_scale"):  # logged with every epoch
+        xy = series(key)
+        axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)
+    axes[2].set_title("curriculum")
+    axes[2].legend(fontsize=8)
+    for ax in axes:
+        ax.set_xlabel("environment steps")
+    fig.suptitle(str(run_dir))
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.train", description=__doc__.split("\n")[0])
     p.add_argument("--policy", default="walk", choices=POLICIES)
@@ -270,7 +306,11 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="runs", help="runs go to OUT/<policy>_<init>")
     p.add_argument("--distributed", action="store_true", help="jax.distributed.initialize() first")
+    p.add_argument("--plot", metavar="PNG", help="only plot the run's training curves to PNG")
     a = p.parse_args(argv)
+    if a.plot:
+        plot_curves(pathlib.Path(a.out) / f"{a.policy}_{a.init}", pathlib.Path(a.plot))
+        return 0
     if a.distributed:
         jax.distributed.initialize()
     cfg = default_train_config(a.preset)
