@@ -102,6 +102,8 @@ def test_train_chunk_checkpoint_and_resume(tmp_path):
     losses = [r.split(",")[header.index("training/total_loss")] for r in rows[1:]]
     assert [float(v) for v in losses if v] and all(np.isfinite(float(v)) for v in losses if v)
     assert (tmp_path / "tb").is_dir()
+    train_lib.plot_curves(tmp_path, tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").stat().st_size > 10_000
 
 
 def test_unknown_policy_and_preset_are_named():
