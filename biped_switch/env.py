@@ -66,6 +66,10 @@ STATE_SLICES = {
     "com_height": slice(50, 51),
 }
 INITS = ("stand", "random")
+# info keys that Brax's training wrappers (EpisodeWrapper, AutoResetWrapper) own: the env must not
+# write them (an env counter named "steps" doubled Brax's and halved every training episode).
+BRAX_WRAPPER_KEYS = frozenset({"steps", "truncation", "first_pipeline_state", "first_obs",
+                               "episode_metrics", "episode_done"})
 FALL_Z_M = -0.2  # CoM below the track surface (z = 0 on flats): fell into a gap or off the side
 CONTACT_DIST_M = 0.0  # a sole touches when the solver has a contact: signed distance < 0 (MJX's
 # sphere-box collider reports dist = 1 for any separated pair, so no positive margin is possible)
@@ -227,7 +231,6 @@ class BipedEnv(Env):
             "push_force": jnp.zeros(3, jnp.float32),  # world-frame force of the current push [N]
             "push_left_s": jnp.zeros((), jnp.float32),
             "time_s": jnp.zeros((), jnp.float32),
-            "steps": jnp.zeros((), jnp.int32),
         }
         obs, feat = self._observe(data, info, contact)
         metrics = self._metrics(feat, info, fell=jnp.zeros(()), success=jnp.zeros(()))
@@ -276,7 +279,6 @@ class BipedEnv(Env):
         data, _ = jax.lax.scan(substep, state.pipeline_state, None, length=b.n_substeps)
         contact = self._contacts9(data)
         info["time_s"] = info["time_s"] + self.dt
-        info["steps"] = info["steps"] + 1
         obs, feat = self._observe(data, info, contact, prev=info["contact_prev"])
         info["contact_prev"] = contact
         cfg = self.cfg

@@ -179,6 +179,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     ckpt = latest_checkpoint(run_dir)
     params, step, wall_s = None, 0, 0.0
     cs = curr_lib.CurriculumState(**cfg.start)
+    if cfg.policy == "walk":  # flat tracks: difficulty scales nothing, so the terrain stage is moot
+        cs = cs._replace(difficulty=1.0)
     if ckpt is not None:
         params, prog = load_checkpoint(ckpt)
         step, wall_s = prog["step"], prog["wall_s"]

@@ -99,7 +99,9 @@ def test_reset_standing_keyframe(env, batch0):
         np.testing.assert_allclose(batch0.metrics[k], 0.0, atol=1e-6)
     np.testing.assert_array_equal(batch0.metrics["detected_kind"], -1)
     np.testing.assert_array_equal(batch0.done, 0.0)
-    np.testing.assert_array_equal(batch0.info["steps"], 0)
+    # Brax's EpisodeWrapper counts episode steps in info["steps"]; an env key of that name doubled
+    # its count and cut every training episode to half its length.
+    assert not env_lib.BRAX_WRAPPER_KEYS & set(batch0.info)
     np.testing.assert_array_equal(batch0.info["time_s"], 0.0)
 
 
@@ -267,7 +269,6 @@ def test_hold_step_stands_for_one_second(env, hold_traj):
         assert np.all(np.abs(st.obs[:, SL["com_height"]] - h_ref) < 0.02)
         if t >= 10:
             np.testing.assert_array_equal(st.obs[:, SL["contact"]], [[1.0] * 8 + [0.0]] * B)
-        np.testing.assert_array_equal(st.info["steps"], t)
         np.testing.assert_allclose(st.info["time_s"], 0.02 * t, atol=1e-5)
     last = hold_traj[-1]
     assert np.all(np.abs(last.metrics["distance_m"]) < 0.05)

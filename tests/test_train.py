@@ -59,6 +59,7 @@ def test_rollout_freezes_each_episode_at_its_end():
 
 def _tiny_cfg():
     cfg = train_lib.default_train_config("cpu")
+    cfg.policy = "gaps"  # starts the terrain stage at difficulty 0 (walk starts at 1: flat)
     cfg.total_timesteps, cfg.chunk_timesteps, cfg.log_per_chunk = 40, 40, 1
     cfg.ppo.update(num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5)
     cfg.network.update(policy_hidden=(16,), value_hidden=(16,), hm_hidden=(8,))
