@@ -146,6 +146,18 @@ class Logger:
         except ImportError:  # pragma: no cover - tensorboardX ships with brax
             pass
 
+    def drop_after(self, step: int) -> None:
+        """On resume: forget CSV rows of an abandoned chunk (steps past the checkpoint)."""
+        if not self.csv_path.exists():
+            return
+        with self.csv_path.open() as f:
+            reader = csv.DictReader(f)
+            fields, rows = reader.fieldnames, [r for r in reader if float(r["step"]) <= step]
+        with self.csv_path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields)
+            w.writeheader()
+            w.writerows(rows)
+
     def log(self, step: int, row: dict) -> None:
         row = {"step": step, **{k: (round(v, 5) if isinstance(v, float) else v) for k, v in row.items()}}
         new = not self.csv_path.exists()
@@ -185,6 +197,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         params, prog = load_checkpoint(ckpt)
         step, wall_s = prog["step"], prog["wall_s"]
         cs = curr_lib.CurriculumState.from_dict(prog["curriculum"])
+        logger.drop_after(step)
         print_fn(f"resuming {run_dir} at step {step:,} ({ckpt.name}), curriculum {cs.as_dict()}")
     progress = {}
     chunks = 0

@@ -90,7 +90,9 @@ def test_train_chunk_checkpoint_and_resume(tmp_path):
     assert leaves and all(np.all(np.isfinite(np.asarray(x))) for x in leaves)
     assert (tmp_path / "config.json").exists() and json.loads((tmp_path / "config.json").read_text())
 
-    # Resume: a second run continues from step 40 with the saved curriculum state.
+    # Resume: a second run continues from step 40 with the saved curriculum state, and forgets
+    # log rows of an abandoned chunk (here a fake row past the checkpoint).
+    train_lib.Logger(tmp_path).log(60, {"train/steps_per_s": 1.0})
     cfg.total_timesteps = 80
     prog2 = train_lib.train(cfg, tmp_path, env_fn=env_fn, print_fn=lines.append)
     assert any(line.startswith("resuming") for line in lines)
@@ -99,6 +101,8 @@ def test_train_chunk_checkpoint_and_resume(tmp_path):
     assert prog2["curriculum"]["difficulty"] == pytest.approx(0.2)
     rows = (tmp_path / "metrics.csv").read_text().splitlines()
     header = rows[0].split(",")
+    steps = [float(r.split(",")[header.index("step")]) for r in rows[1:]]
+    assert steps == sorted(steps) and 60.0 not in steps
     assert "eval/reward_per_step" in header and "training/total_loss" in header
     losses = [r.split(",")[header.index("training/total_loss")] for r in rows[1:]]
     assert [float(v) for v in losses if v] and all(np.isfinite(float(v)) for v in losses if v)
