@@ -43,9 +43,8 @@ def run(batch: int = 256, kind: str = "mixed", steps: int = 20, seed: int = 0,
     tcfg = default_terrain_config()
     if n_artifacts is not None:
         tcfg.n_artifacts = n_artifacts
-    cfg = env_lib.default_env_config()
-    cfg.kind, cfg.n_tracks, cfg.seed = kind, n_tracks, seed
-    env = env_lib.BipedEnv(cfg, terrain_cfg=tcfg)
+    env = env_lib.make_env(kind, terrain_cfg=tcfg, n_tracks=n_tracks, seed=seed)
+    cfg = env.cfg
     keys = jax.random.split(jax.random.PRNGKey(seed), batch)
 
     reset = jax.jit(jax.vmap(env.reset))

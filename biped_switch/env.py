@@ -66,6 +66,7 @@ STATE_SLICES = {
     "com_height": slice(50, 51),
 }
 INITS = ("stand", "random")
+HOLD_KP_PER_GEAR, HOLD_KD_RATIO = 3.0, 0.05  # standing PD hold: e.g. knee 750 Nm/rad, 37.5 Nm s/rad
 # info keys that Brax's training wrappers (EpisodeWrapper, AutoResetWrapper) own: the env must not
 # write them (an env counter named "steps" doubled Brax's and halved every training episode).
 BRAX_WRAPPER_KEYS = frozenset({"steps", "truncation", "first_pipeline_state", "first_obs",
@@ -131,8 +132,6 @@ class BipedEnv(Env):
         b = self.biped
         self._data0 = mjx.make_data(b.mj_model, impl="jax")
         self._stand_q = jnp.asarray(b.stand_qpos[b.qpos_adr], jnp.float32)
-        self._kp = jnp.asarray(3.0 * b.gear, jnp.float32)  # PD hold [Nm/rad]
-        self._kd = self._kp / 20.0  # [Nm s/rad]
         self._gear = jnp.asarray(b.gear, jnp.float32)
         self._lo = jnp.asarray(b.joint_range[:, 0], jnp.float32)
         self._hi = jnp.asarray(b.joint_range[:, 1], jnp.float32)
@@ -185,8 +184,8 @@ class BipedEnv(Env):
         """Actions of a PD controller holding the standing keyframe (scripted standing)."""
         q = data.qpos[self.biped.qpos_adr]
         qd = data.qvel[self.biped.dof_adr]
-        tau = self._kp * (self._stand_q - q) - self._kd * qd
-        return jnp.clip(tau / self._gear, -1.0, 1.0)
+        tau = gait.pd_torque(q, qd, self._stand_q, HOLD_KP_PER_GEAR, HOLD_KD_RATIO, self._gear)
+        return tau / self._gear
 
     def reset(self, rng: jax.Array, difficulty=None, track_id=None, guide_scale=None,
               push_scale=None) -> State:
@@ -387,13 +386,14 @@ class BipedEnv(Env):
         }
 
 
-def make_env(kind: str = "walk", init: str = "stand", **overrides) -> BipedEnv:
-    """Convenience: a BipedEnv on `kind` tracks with env-config overrides (e.g. n_tracks=8)."""
+def make_env(kind: str = "walk", init: str = "stand", curriculum_cfg=None, terrain_cfg=None,
+             **overrides) -> BipedEnv:
+    """A BipedEnv on `kind` tracks with env-config overrides (e.g. n_tracks=8, difficulty=0.5)."""
     cfg = default_env_config()
     cfg.kind, cfg.init = kind, init
     for k, v in overrides.items():
         if k not in cfg:
             raise KeyError(f"unknown env config key {k!r}")
         cfg[k] = v
-    return BipedEnv(cfg)
+    return BipedEnv(cfg, terrain_cfg=terrain_cfg, curriculum_cfg=curriculum_cfg)
 

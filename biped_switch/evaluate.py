@@ -81,9 +81,8 @@ def find_policy(policy: str, init: str, runs: pathlib.Path) -> pathlib.Path | No
 def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, seed: int,
                     horizon_s: float, batch: int) -> dict:
     """Table I row: `trials` episodes of `policy` on its own terrain kind, track i for trial i."""
-    ecfg = env_lib.default_env_config()
-    ecfg.kind, ecfg.init, ecfg.n_tracks, ecfg.seed = policy, init, trials, EVAL_TRACK_SEED
-    env = env_lib.BipedEnv(ecfg)  # difficulty 1, no guides, no pushes
+    # difficulty 1, no guides, no pushes (the config's defaults)
+    env = env_lib.make_env(policy, init, n_tracks=trials, seed=EVAL_TRACK_SEED)
     act, progress = train_lib.load_policy(ckpt, env)
     run = jax.jit(functools.partial(rollout, env, act, n_envs=batch,
                                     horizon=int(round(horizon_s / env.dt))))

@@ -40,12 +40,17 @@ def reference(t_s, stand_q, cfg=None):
     return q.reshape(12)
 
 
+def pd_torque(q, qd, q_ref, kp_per_gear, kd_ratio, gear):
+    """PD torques [Nm] towards `q_ref`: stiffness kp_per_gear * gear [Nm/rad], damping kd_ratio *
+    stiffness [Nm s/rad], bounded by each motor's limit `gear` [Nm]."""
+    kp = kp_per_gear * gear
+    return jnp.clip(kp * (q_ref - q) - kd_ratio * kp * qd, -gear, gear)
+
+
 def joint_guide(q, qd, q_ref, gear, cfg=None):
-    """(12,) PD torques [Nm] towards `q_ref`, bounded by each motor's limit."""
+    """(12,) guide torques [Nm] towards the gait's `q_ref`."""
     cfg = cfg or default_gait_config()
-    kp = cfg.kp_per_gear * gear
-    tau = kp * (q_ref - q) - cfg.kd_ratio * kp * qd
-    return jnp.clip(tau, -gear, gear)
+    return pd_torque(q, qd, q_ref, cfg.kp_per_gear, cfg.kd_ratio, gear)
 
 
 def com_guide(com, lin_vel, ang_vel, yaw, pitch, roll, height_m, target_speed_mps, stand_height_m,

@@ -104,9 +104,7 @@ def main(argv=None) -> int:
     from biped_switch import evaluate, train as train_lib
 
     kind = a.kind or a.policy or "mixed"
-    ecfg = env_lib.default_env_config()
-    ecfg.kind, ecfg.init, ecfg.n_tracks, ecfg.seed = kind, a.init, 1, evaluate.EVAL_TRACK_SEED + a.seed
-    env = env_lib.BipedEnv(ecfg)
+    env = env_lib.make_env(kind, a.init, n_tracks=1, seed=evaluate.EVAL_TRACK_SEED + a.seed)
     act = None
     if not a.scripted:
         ckpt = evaluate.find_policy(a.policy, a.init, pathlib.Path(a.runs))

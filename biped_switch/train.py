@@ -77,12 +77,9 @@ def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
 def make_env(cfg, cs: curr_lib.CurriculumState) -> env_lib.BipedEnv:
     if cfg.policy not in POLICIES:
         raise ValueError(f"unknown policy {cfg.policy!r}; expected one of {POLICIES}")
-    ecfg = env_lib.default_env_config()
-    ecfg.kind, ecfg.init, ecfg.n_tracks, ecfg.seed = cfg.policy, cfg.init, cfg.n_tracks, cfg.seed
-    ecfg.difficulty = float(cs.difficulty)
-    ecfg.guide_scale = float(cs.guide_scale)
-    ecfg.push_scale = float(cs.push_scale)
-    return env_lib.BipedEnv(ecfg, curriculum_cfg=cfg.curriculum)
+    return env_lib.make_env(cfg.policy, cfg.init, curriculum_cfg=cfg.curriculum,
+                            n_tracks=cfg.n_tracks, seed=cfg.seed, difficulty=float(cs.difficulty),
+                            guide_scale=float(cs.guide_scale), push_scale=float(cs.push_scale))
 
 
 def _save(run_dir: pathlib.Path, step: int, params, progress: dict) -> pathlib.Path:
