@@ -119,3 +119,40 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         push_duration_s=0.2,
         push_interval_s=2.0,  # mean time between pushes
     )
+
+
+def default_sweep_config() -> config_dict.ConfigDict:
+    """Switch-point sweeps (paper Sec. III-C): estimator data and lookup tables."""
+    return config_dict.create(
+        n_points=100_000,  # data points per target terrain kind (5 per switch sample)
+        window=(-2, -1, 0, 1, 2),  # data points kept around the switch step t
+        switch_max_m=0.9,  # switch at U(0, switch_max_m) before the artifact (= detect range)
+        steps_past=2,  # success: this many foot touchdowns past the artifact's end, no fall
+        horizon_s=20.0,  # a sample that has not succeeded or fallen by then is a failure
+        lookup_bin_m=0.01,  # lookup table: success rate per 1 cm of switch distance (90 bins)
+        batch=256,  # episodes per jitted rollout (split over local devices)
+        difficulty=1.0,
+    )
+
+
+def default_switching_config() -> config_dict.ConfigDict:
+    """When-to-switch rules (paper Sec. IV-B); all values may be traced."""
+    return config_dict.create(
+        estimator_threshold=0.85,  # switch once E_i(s) >= this
+        force_switch_m=0.01,  # CoM-over-feet and estimator: force the switch this close
+        feet_tol_m=0.10,  # CoM over feet: feet within this fore-aft distance of each other [m]
+        support_margin_m=0.01,  # CoM over feet: CoM within this of the support polygon [m]
+    )
+
+
+def default_estimator_config() -> config_dict.ConfigDict:
+    """Switch estimator: a small sigmoid classifier on (robot state, heightmap)."""
+    return config_dict.create(
+        hm_hidden=(64,),  # heightmap encoder
+        hidden=(128, 64),  # after joining with the robot state
+        epochs=1500,
+        batch_size=1024,
+        learning_rate=1e-3,
+        val_frac=0.1,
+        seed=0,
+    )

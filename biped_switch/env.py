@@ -342,6 +342,18 @@ class BipedEnv(Env):
             parts.append(jax.nn.one_hot(feat["detect"]["kind"], len(terrain.ARTIFACT_KINDS)))
         return jnp.concatenate(parts), feat
 
+    def switch_inputs(self, state: State) -> dict:
+        """What switching rules read besides the observation: the oracle detection at the pelvis
+        CoM, the heading, the whole-body CoM and the sole centres (world frame; these two come
+        from the last substep's kinematics, 5 ms old), and the 8 sole contacts."""
+        d = state.pipeline_state
+        f = self._features(d, state.info["boxes"])
+        return {"detect": self.detect(state.info, f["com"][0]), "com_x_m": f["com"][0],
+                "yaw": f["yaw"], "body_com": d.subtree_com[self.biped.pelvis_body],
+                "soles": d.geom_xpos[self.biped.sole_geoms.reshape(-1)],
+                "contact": state.obs[STATE_SLICES["contact"]][:8],
+                "contact_prev": state.obs[STATE_SLICES["contact_prev"]][:8]}
+
     def detect(self, info, x):
         """Oracle detector: the next artifact not yet passed, and its kind once its start is
         within `detect_range_m` of the body (else kind -1). Distances in metres along x."""

@@ -188,14 +188,16 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     ckpt = latest_checkpoint(run_dir)
     params, step, wall_s = None, 0, 0.0
     cs = curr_lib.CurriculumState(**cfg.start)
-    if cfg.policy == "walk":  # flat tracks: difficulty scales nothing, so the terrain stage is moot
-        cs = cs._replace(difficulty=1.0)
     if ckpt is not None:
         params, prog = load_checkpoint(ckpt)
         step, wall_s = prog["step"], prog["wall_s"]
         cs = curr_lib.CurriculumState.from_dict(prog["curriculum"])
         logger.drop_after(step)
         print_fn(f"resuming {run_dir} at step {step:,} ({ckpt.name}), curriculum {cs.as_dict()}")
+    if cfg.policy == "walk" and int(cs.stage) == 0:
+        # flat tracks: difficulty scales nothing, so the terrain stage is moot (also on resume of a
+        # run started before this rule)
+        cs = cs._replace(difficulty=1.0)
     progress = {}
     chunks = 0
     factory = None

@@ -1,0 +1,420 @@
+"""Switch-point sweeps (paper Sec. III-C): estimator data and lookup tables.
+
+    python -m biped_switch.sweep --init stand [--targets jumps gaps stairs] [--points 100000]
+
+For a target policy i and every other policy j, pi_j walks up to a single artifact of kind i; the
+artifact is detected 0.9 m ahead and pi_i takes over at a distance U(0, 0.9) m before it. The five
+observations (robot state + heightmap) at control steps t-2 .. t+2 around the switch step t form
+one sample, labelled 1 when the robot then gets past the artifact and makes `steps_past` (2) foot
+touchdowns beyond its end without falling, else 0 (a fall, or neither within `horizon_s`).
+Episodes that fall before the switch, or never reach the switch point, give no sample. Sources
+cycle j over the other three policies, so every pair gets a third of the samples.
+
+One jitted rollout runs a batch of episodes (split over every local device with pmap) until all
+have a label; batches are saved as parts under runs/sweeps/<init>/<target>/ and a rerun resumes
+after the last part; the parts are merged into runs/sweeps/<init>/<target>.npz (the estimator's
+input, see estimator.py for the fields). The lookup table (success rate per 1 cm of switch
+distance for each pair j -> i, and its argmax) and the success-against-distance figure (the
+paper's Fig. 4b) go to experiments/results/lookup/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_switch import env as env_lib
+from biped_switch import policies as pol
+from biped_switch import terrain
+from biped_switch.config import default_sweep_config, default_terrain_config
+
+SWEEP_TRACK_SEED = 20_000  # sweep tracks: disjoint from training (0..) and evaluation (10,000..)
+N_WINDOW = 5
+WINDOW_BEFORE = 2  # points before the switch step in the window (t-2, t-1)
+
+
+# ----------------------------------------------------------------------- labelling (pure)
+def touchdowns(contact, contact_prev) -> jax.Array:
+    """(2,) 1 where the left / right foot lands now: some sole touches and none did a step ago."""
+    now = contact.reshape(2, 4).max(axis=1) > 0.5
+    before = contact_prev.reshape(2, 4).max(axis=1) > 0.5
+    return now & ~before
+
+
+def count_steps_past(count, contact, contact_prev, soles_x, art_end_x):
+    """Touchdown count updated with this step's landings of feet whose centre is past the end."""
+    feet_x = soles_x.reshape(2, 4).mean(axis=1)
+    return count + jnp.sum(touchdowns(contact, contact_prev) & (feet_x > art_end_x))
+
+
+class Window(NamedTuple):
+    """Rolling record of observations around a switch, per env."""
+
+    ring: jax.Array  # (WINDOW_BEFORE + 1, O): the last three observations, oldest first
+    window: jax.Array  # (N_WINDOW, O)
+    n_after: jax.Array  # int32: observations after the switch written so far (0..2)
+
+
+def window_init(obs) -> Window:
+    ring = jnp.broadcast_to(obs, (WINDOW_BEFORE + 1,) + obs.shape)
+    return Window(ring, jnp.zeros((N_WINDOW,) + obs.shape, obs.dtype), jnp.zeros((), jnp.int32))
+
+
+def window_update(w: Window, obs, switched_now, switched_before) -> Window:
+    """`obs` is the observation the (possibly new) policy acts on at this step.
+
+    At the switch step t the ring (t-2, t-1, t) fills the first three slots; each of the next two
+    steps writes one slot. An episode that ends first repeats its last observation."""
+    ring = jnp.concatenate([w.ring[1:], obs[None]])
+    window = jnp.where(switched_now, w.window.at[: WINDOW_BEFORE + 1].set(ring), w.window)
+    write = switched_before & (w.n_after < N_WINDOW - WINDOW_BEFORE - 1)
+    slot = WINDOW_BEFORE + 1 + w.n_after
+    window = jnp.where(write, window.at[jnp.minimum(slot, N_WINDOW - 1)].set(obs), window)
+    return Window(ring, window, w.n_after + write.astype(jnp.int32))
+
+
+def window_fill(w: Window) -> jax.Array:
+    """The window with missing after-switch slots (episode ended) filled by the last written."""
+    idx = jnp.minimum(jnp.arange(N_WINDOW), WINDOW_BEFORE + w.n_after)
+    return w.window[idx]
+
+
+# ----------------------------------------------------------------------- the rollout
+def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, switch_max_m: float,
+                  steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0) -> dict:
+    """A batch of switch episodes on single-artifact tracks (one env per track id).
+
+    `sources` (B,) policy index acting before the switch, `target` the index switched to;
+    `guide_scale` > 0 turns the scripted gait's guide forces on (tests and diagnostics only)."""
+    n = track_ids.shape[0]
+    k_reset, k_u = jax.random.split(rng)
+    state = jax.vmap(lambda k, i: env.reset(k, track_id=i, guide_scale=guide_scale))(
+        jax.random.split(k_reset, n), track_ids)
+    switch_at = jax.random.uniform(k_u, (n,), maxval=switch_max_m)
+    f = jnp.zeros(n)
+    carry = {"state": state, "active": sources.astype(jnp.int32), "switched": f > 1,
+             "dist_m": jnp.full(n, jnp.nan), "count": jnp.zeros(n, jnp.int32), "ended": f > 1,
+             "fell": f > 1, "fell_before": f > 1, "label": f > 1, "steps": jnp.zeros(n, jnp.int32),
+             "win": jax.vmap(window_init)(state.obs), "t": jnp.zeros((), jnp.int32)}
+
+    def step(c, _):
+        state = c["state"]
+        si = jax.vmap(env.switch_inputs)(state)
+        det = si["detect"]
+        live = ~c["ended"]
+        now = live & ~c["switched"] & (det["kind"] >= 0) & (det["dist_m"] <= switch_at)
+        active = jnp.where(now, target, c["active"])
+        dist_m = jnp.where(now, det["dist_m"], c["dist_m"])
+        switched = c["switched"] | now
+        win = jax.vmap(window_update)(c["win"], state.obs, now, c["switched"] & live)
+        # touchdowns counted on the observation's own contact flags (this step vs the last)
+        art_end = state.info["art_x1"][:, 0]
+        count = jnp.where(c["switched"] & live, jax.vmap(count_steps_past)(
+            c["count"], si["contact"], si["contact_prev"], si["soles"][..., 0], art_end), c["count"])
+        action = pol.select(pol.all_actions(apply, params, state.obs), active)
+        nxt = jax.vmap(env.step)(state, action)
+        fell = live & (nxt.metrics["fell"] > 0.5)
+        label = live & switched & ((count >= steps_past) | (nxt.metrics["success"] > 0.5)) & ~fell
+        ended = c["ended"] | fell | label | (live & (nxt.done > 0.5))
+        keep = ~live
+        state = jax.tree.map(
+            lambda o, n_: jnp.where(keep.reshape((-1,) + (1,) * (n_.ndim - 1)), o, n_), state, nxt)
+        return {"state": state, "active": active, "switched": switched, "dist_m": dist_m,
+                "count": count, "ended": ended, "fell": c["fell"] | fell,
+                "fell_before": c["fell_before"] | (fell & ~switched), "label": c["label"] | label,
+                "steps": c["steps"] + live.astype(jnp.int32), "win": win, "t": c["t"] + 1}, None
+
+    def run_chunk(c):
+        return jax.lax.scan(step, c, None, length=chunk)[0]
+
+    c = jax.lax.while_loop(lambda c: (c["t"] < horizon) & jnp.any(~c["ended"]), run_chunk, carry)
+    # the window is complete two steps after the switch; a label needs >= 2 touchdowns, so later
+    valid = c["switched"] & ~c["fell_before"]
+    return {"window": jax.vmap(window_fill)(c["win"]), "label": c["label"], "valid": valid,
+            "switch_dist_m": c["dist_m"], "switch_at_m": switch_at, "source": sources,
+            "track_id": track_ids, "fell": c["fell"],
+            "steps": c["steps"]}
+
+
+def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0):
+    tcfg = default_terrain_config()
+    tcfg.n_artifacts = 1
+    return env_lib.make_env(target, init, terrain_cfg=tcfg, n_tracks=n_tracks,
+                            seed=SWEEP_TRACK_SEED, difficulty=difficulty)
+
+
+def make_runner(env, apply, target: str, cfg):
+    """jit/pmap'ed (params, rng, track_ids, sources) -> batch results, over all local devices."""
+    n_dev = jax.local_device_count()
+    horizon = int(round(cfg.horizon_s / env.dt))
+    tgt = pol.POLICY_INDEX[target]
+
+    def one(params, rng, ids, src):
+        return sweep_rollout(env, apply, params, rng, ids, src, tgt, cfg.switch_max_m,
+                             cfg.steps_past, horizon)
+
+    if n_dev == 1:
+        f = jax.jit(one)
+        return lambda params, rng, ids, src: f(params, rng, ids, src)
+    pf = jax.pmap(one, in_axes=(None, 0, 0, 0))
+
+    def run(params, rng, ids, src):
+        if ids.shape[0] % n_dev:
+            raise ValueError(f"batch {ids.shape[0]} must divide over {n_dev} devices")
+        split = lambda x: x.reshape((n_dev, -1) + x.shape[1:])  # noqa: E731
+        out = pf(params, jax.random.split(rng, n_dev), split(ids), split(src))
+        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out)
+
+    return run
+
+
+# ----------------------------------------------------------------------- lookup tables
+def lookup_table(dist_m, label, source, target: str, bin_m: float = 0.01, max_m: float = 0.9):
+    """Success rate per switch-distance bin for each source policy -> `target`, and the argmax.
+
+    Returns {"bins_m": bin lower edges, "rate": (P, nbins) NaN where empty, "count": (P, nbins),
+    "best_m": (P,) centre of the best bin (NaN for the target itself or no data)}. Ties go to the
+    bin farthest from the artifact (the first maximum scanning from 0.9 m down)."""
+    nb = int(round(max_m / bin_m))
+    b = np.clip(np.floor(np.asarray(dist_m) / bin_m).astype(int), 0, nb - 1)
+    P = len(pol.POLICY_NAMES)
+    count = np.zeros((P, nb))
+    succ = np.zeros((P, nb))
+    np.add.at(count, (np.asarray(source), b), 1)
+    np.add.at(succ, (np.asarray(source), b), np.asarray(label, float))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = succ / count
+    best = np.full(P, np.nan)
+    for j in range(P):
+        if j == pol.POLICY_INDEX[target] or not np.any(count[j] > 0):
+            continue
+        r = np.where(count[j] > 0, rate[j], -1.0)[::-1]
+        best[j] = (nb - 1 - int(np.argmax(r)) + 0.5) * bin_m
+    return {"bins_m": np.arange(nb) * bin_m, "rate": rate, "count": count, "best_m": best}
+
+
+def lookup_matrix(tables: dict) -> np.ndarray:
+    """(P, 3) best switch distance [m] for active -> target from per-target tables."""
+    m = np.full((len(pol.POLICY_NAMES), len(terrain.ARTIFACT_KINDS)), np.nan)
+    for k, t in tables.items():
+        m[:, terrain.ARTIFACT_KINDS.index(k)] = t["best_m"]
+    return m
+
+
+def plot_switch_success(tables: dict, path: pathlib.Path, title: str = "",
+                        smooth_bins: int = 5) -> None:
+    """The paper's Fig. 4b: success of switching against distance to the artifact, per pair."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(tables), figsize=(5 * len(tables), 3.6), squeeze=False)
+    for ax, (target, t) in zip(axes[0], tables.items()):
+        for j, name in enumerate(pol.POLICY_NAMES):
+            cnt = t["count"][j]
+            if name == target or cnt.sum() == 0:
+                continue
+            k = np.ones(smooth_bins)
+            s = np.convolve(np.nan_to_num(t["rate"][j] * cnt), k, "same")
+            n = np.convolve(cnt, k, "same")
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ax.plot(t["bins_m"] + 0.005, 100 * s / n, label=f"{name} -> {target} (n={int(cnt.sum())})")
+            if np.isfinite(t["best_m"][j]):
+                ax.axvline(t["best_m"][j], ls=":", lw=0.8, color=ax.lines[-1].get_color())
+        ax.set_xlim(0.9, 0)  # the robot approaches from the left: far -> near
+        ax.set_ylim(-2, 102)
+        ax.set_xlabel("switch distance before the artifact [m]")
+        ax.set_ylabel(f"% success (moving mean of {smooth_bins} cm)")
+        ax.set_title(f"switch to {target}")
+        ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------- the sweep driver
+def _split(window: np.ndarray):
+    state = window[..., : env_lib.STATE_SIZE].astype(np.float32)
+    hm = window[..., env_lib.STATE_SIZE:].astype(np.float16)
+    return state, hm
+
+
+def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
+              n_tracks: int = 512, stand_in: str | None = None, print_fn=print) -> pathlib.Path:
+    """Runs (or resumes) the sweep of one target kind; returns the merged npz path."""
+    if target not in terrain.ARTIFACT_KINDS:
+        raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
+    part_dir = out_dir / init / target
+    part_dir.mkdir(parents=True, exist_ok=True)
+    env = make_env(target, init, n_tracks, cfg.difficulty)
+    suite = pol.load_suite(init, env, runs, stand_in=stand_in)
+    meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
+            "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
+            "config": cfg.to_dict(), "window": list(cfg.window)}
+    meta_path = part_dir / "meta.json"
+    if meta_path.exists():
+        old = json.loads(meta_path.read_text())
+        if {k: old.get(k) for k in ("policies", "seed", "config")} != {
+                k: json.loads(json.dumps(meta[k])) for k in ("policies", "seed", "config")}:
+            raise RuntimeError(f"{part_dir} holds parts of a sweep with other policies, seed or "
+                               f"config; move it away or pass another --out")
+    meta_path.write_text(json.dumps(meta, indent=2, default=str))
+    others = np.array([j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]])
+    runner = make_runner(env, suite.apply, target, cfg)
+    parts = sorted(part_dir.glob("part_*.npz"))
+    have = sum(int(np.load(p)["label"].shape[0]) for p in parts)
+    b = len(parts)
+    if have:
+        print_fn(f"[sweep {init}/{target}] resuming: {len(parts)} parts, {have:,} points")
+    t0, pts0 = time.perf_counter(), have
+    batch = cfg.batch
+    while have < cfg.n_points:
+        t_b = time.perf_counter()
+        idx = np.arange(b * batch, (b + 1) * batch)
+        ids = jnp.asarray(idx % n_tracks, jnp.int32)
+        src = jnp.asarray(others[idx % len(others)], jnp.int32)
+        rng = jax.random.fold_in(jax.random.PRNGKey(seed), b)
+        out = jax.device_get(runner(suite.params, rng, ids, src))
+        v = np.asarray(out["valid"])
+        state, hm = _split(np.asarray(out["window"])[v])
+        n_s = int(v.sum())
+        k = np.repeat(np.arange(n_s), N_WINDOW)
+        part = {"state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
+                "label": np.repeat(np.asarray(out["label"])[v], N_WINDOW).astype(np.int8),
+                "sample": (b * batch + np.flatnonzero(v)[k]).astype(np.int32),
+                "offset": np.tile(np.asarray(cfg.window, np.int8), n_s),
+                "source": np.repeat(np.asarray(out["source"])[v], N_WINDOW).astype(np.int8),
+                "switch_dist_m": np.repeat(np.asarray(out["switch_dist_m"])[v], N_WINDOW)
+                .astype(np.float32),
+                "track_id": np.repeat(np.asarray(out["track_id"])[v], N_WINDOW).astype(np.int32)}
+        tmp = part_dir / f"tmp_{b:05d}.npz"
+        np.savez_compressed(tmp, **part)
+        tmp.rename(part_dir / f"part_{b:05d}.npz")
+        have += len(part["label"])
+        b += 1
+        dt = time.perf_counter() - t_b
+        rate = (have - pts0) / max(time.perf_counter() - t0, 1e-9)
+        print_fn(f"[sweep {init}/{target}] batch {b}: {n_s}/{batch} valid samples, "
+                 f"{100 * np.mean(np.asarray(out['label'])[v]) if n_s else float('nan'):.0f}% "
+                 f"success; {have:,}/{cfg.n_points:,} points, {len(part['label']) / dt:,.0f} "
+                 f"points/s this batch ({dt:.1f} s), ~{(cfg.n_points - have) / max(rate, 1e-9) / 60:.1f} "
+                 f"min left")
+        if n_s == 0 and b >= 3 and have == 0:
+            raise RuntimeError(f"no valid switch sample in {b} batches: the source policies fall "
+                               f"before the switch point (untrained policies?)")
+    return merge_parts(part_dir, out_dir / init / f"{target}.npz", meta)
+
+
+def merge_parts(part_dir: pathlib.Path, path: pathlib.Path, meta: dict) -> pathlib.Path:
+    parts = [dict(np.load(p)) for p in sorted(part_dir.glob("part_*.npz"))]
+    merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    merged["meta"] = np.array(json.dumps(meta, default=str))
+    np.savez_compressed(path, **merged)
+    return path
+
+
+def load_data(path: pathlib.Path) -> dict:
+    d = dict(np.load(path))
+    d["meta"] = json.loads(str(d["meta"]))
+    return d
+
+
+def tables_from_data(data_by_target: dict, cfg) -> dict:
+    tables = {}
+    for target, d in data_by_target.items():
+        at = d["offset"] == 0  # one row per sample
+        tables[target] = lookup_table(d["switch_dist_m"][at], d["label"][at], d["source"][at],
+                                      target, cfg.lookup_bin_m, cfg.switch_max_m)
+    return tables
+
+
+def save_lookup(tables: dict, init: str, out: pathlib.Path, meta: dict) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    mat = lookup_matrix(tables)
+    doc = {"init": init, "best_m": {f"{pol.POLICY_NAMES[j]}->{k}": (None if np.isnan(mat[j, i])
+                                                                   else round(float(mat[j, i]), 3))
+                                    for i, k in enumerate(terrain.ARTIFACT_KINDS) for j in
+                                    range(len(pol.POLICY_NAMES))},
+           "matrix_m": [[None if np.isnan(v) else float(v) for v in row] for row in mat],
+           "tables": {k: {"rate": [[None if np.isnan(v) else round(float(v), 4) for v in r]
+                                   for r in t["rate"]], "count": t["count"].astype(int).tolist()}
+                      for k, t in tables.items()},
+           "meta": meta}
+    (out / f"lookup_{init}.json").write_text(json.dumps(doc, indent=1, default=str))
+    plot_switch_success(tables, out / f"fig4b_{init}.png",
+                        f"{init} init: switch success against distance (sweep data)")
+    return doc
+
+
+def load_lookup(init: str, results: str | pathlib.Path = "experiments/results/lookup") -> np.ndarray:
+    """(P, 3) switch distance matrix saved by the sweep (NaN where not applicable)."""
+    path = pathlib.Path(results) / f"lookup_{init}.json"
+    if not path.exists():
+        raise FileNotFoundError(f"{path} missing: run `python -m biped_switch.sweep --init {init}`")
+    m = json.loads(path.read_text())["matrix_m"]
+    return np.array([[np.nan if v is None else v for v in row] for row in m])
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m biped_switch.sweep", description=__doc__.split("\n")[0])
+    p.add_argument("--init", default="stand", choices=env_lib.INITS)
+    p.add_argument("--targets", nargs="+", default=list(terrain.ARTIFACT_KINDS),
+                   choices=terrain.ARTIFACT_KINDS)
+    p.add_argument("--points", type=int, default=None, help="data points per target (default 100,000)")
+    p.add_argument("--batch", type=int, default=None, help="episodes per jitted batch")
+    p.add_argument("--tracks", type=int, default=512, help="single-artifact tracks in the bank")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runs", default="runs", help="where the trained policies are")
+    p.add_argument("--out", default="runs/sweeps", help="sweep data (large; not committed)")
+    p.add_argument("--results", default="experiments/results/lookup")
+    p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
+                   help="use this policy for any that is not trained yet (pipeline checks only)")
+    a = p.parse_args(argv)
+    cfg = default_sweep_config()
+    if a.points is not None:
+        cfg.n_points = a.points
+    if a.batch is not None:
+        cfg.batch = a.batch
+    if cfg.n_points < 1 or cfg.batch < 1:
+        p.error("--points and --batch must be >= 1")
+    out = pathlib.Path(a.out)
+    data, stats = {}, {}
+    for target in a.targets:
+        t0 = time.perf_counter()
+        print(f"sweep {a.init}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
+              f"{jax.local_device_count()} {jax.devices()[0].platform} device(s)", flush=True)
+        path = run_sweep(a.init, target, cfg, out, a.runs, a.seed, a.tracks, a.stand_in,
+                         print_fn=lambda *s: print(*s, flush=True))
+        data[target] = load_data(path)
+        wall = time.perf_counter() - t0
+        n = len(data[target]["label"])
+        stats[target] = {"points": n, "wall_s": round(wall, 1), "points_per_s": round(n / wall, 1),
+                         "success_pct": round(100 * float(data[target]["label"].mean()), 2),
+                         "data": str(path), "device": str(jax.devices()[0])}
+        print(json.dumps({"sweep": f"{a.init}/{target}", **stats[target]}), flush=True)
+    for target in terrain.ARTIFACT_KINDS:  # the lookup table covers every target swept so far
+        path = out / a.init / f"{target}.npz"
+        if target not in data and path.exists():
+            data[target] = load_data(path)
+    tables = tables_from_data(data, cfg)
+    meta = {"sweeps": stats, "policies": {k: d["meta"]["policies"] for k, d in data.items()}}
+    doc = save_lookup(tables, a.init, pathlib.Path(a.results), meta)
+    print("lookup table (best switch distance [m], active -> target):")
+    for k, v in doc["best_m"].items():
+        if v is not None:
+            print(f"  {k:16s} {v:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

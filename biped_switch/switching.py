@@ -1,0 +1,239 @@
+"""When to switch: the paper's switching rules (Sec. IV-B) as one pure, per-env decision function,
+and the multi-policy rollout that applies them on multi-artifact tracks.
+
+Every method differs only in *when* it switches. The oracle detector names the next artifact once
+its start is within 0.9 m of the body; its policy (POLICY_INDEX = artifact code + 1) becomes the
+target, and the rule decides at each control step whether the active policy hands over now:
+  random         at a distance U(0, 0.9) m before the artifact, drawn at detection (the same
+                 thing as a random distance travelled after detection)
+  detection      at once
+  lookup         at the lookup table's best distance for (active policy -> target)
+  com_over_feet  when the whole-body CoM is over the support polygon of the touching soles and the
+                 feet are within `feet_tol_m` of each other fore-aft
+  estimator      when the target's switch estimator gives E(s) >= `estimator_threshold`
+Every method is forced to switch once the artifact is `force_switch_m` (1 cm) away, so a rule
+that never fires (and a distance stepped over between control steps) still switches in time.
+While nothing is detected the active policy keeps control; an artifact policy also walks the
+flat after its artifact (>= 1.08 m) until the next artifact comes into range and its switch. The method is a traced integer and the rules' numbers are traced arrays, so
+all methods and both policy suites run through one compiled rollout.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_switch import policies as pol
+from biped_switch.config import default_switching_config
+
+METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator")
+METHOD_INDEX = {m: i for i, m in enumerate(METHODS)}
+N_POLICIES = len(pol.POLICY_NAMES)
+N_TARGETS = N_POLICIES - 1  # artifact kinds: jumps, gaps, stairs
+
+
+class Rules(NamedTuple):
+    """Traced parameters of a switching method."""
+
+    method: jax.Array  # int32 index into METHODS
+    lookup_m: jax.Array  # (N_POLICIES, N_TARGETS) switch distance [m] for active -> target
+    threshold: jax.Array  # estimator threshold
+    force_m: jax.Array  # forced switch distance [m]
+    feet_tol_m: jax.Array
+    margin_m: jax.Array  # CoM may be this far outside the support polygon [m]
+    switch_max_m: jax.Array  # random method: U(0, switch_max_m)
+
+
+def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9) -> Rules:
+    if method not in METHOD_INDEX:
+        raise ValueError(f"unknown switching method {method!r}; expected one of {METHODS}")
+    cfg = cfg or default_switching_config()
+    if lookup_m is None:
+        if method == "lookup":
+            raise ValueError("the lookup method needs a lookup table (python -m biped_switch.sweep)")
+        lookup_m = np.zeros((N_POLICIES, N_TARGETS))
+    lookup_m = np.asarray(lookup_m, np.float32)
+    if lookup_m.shape != (N_POLICIES, N_TARGETS):
+        raise ValueError(f"lookup table must be {(N_POLICIES, N_TARGETS)}, got {lookup_m.shape}")
+    f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
+    return Rules(jnp.asarray(METHOD_INDEX[method], jnp.int32), jnp.asarray(np.nan_to_num(lookup_m)),
+                 f32(cfg.estimator_threshold), f32(cfg.force_switch_m), f32(cfg.feet_tol_m),
+                 f32(cfg.support_margin_m), f32(switch_max_m))
+
+
+class SwitchState(NamedTuple):
+    """Per-env controller state."""
+
+    active: jax.Array  # int32 policy index acting now
+    art_index: jax.Array  # int32 index of the artifact last detected (-1: none yet)
+    random_m: jax.Array  # random method: this artifact's switch distance [m]
+    n_switches: jax.Array  # int32
+
+
+def init_state(n_envs: int) -> SwitchState:
+    return SwitchState(jnp.zeros(n_envs, jnp.int32), jnp.full(n_envs, -1, jnp.int32),
+                       jnp.zeros(n_envs, jnp.float32), jnp.zeros(n_envs, jnp.int32))
+
+
+# ----------------------------------------------------------------------- CoM over feet
+_TRI = np.array(list(itertools.combinations(range(8), 3)), np.int32)  # 56 triangles of 8 soles
+_SEG = np.array(list(itertools.combinations(range(8), 2)), np.int32)  # 28 segments
+
+
+def in_support(p: jax.Array, pts: jax.Array, mask: jax.Array, margin_m) -> jax.Array:
+    """Whether 2D point `p` lies within `margin_m` of the convex hull of the masked `pts` (8, 2).
+
+    In 2D a point is in the hull iff it is in a triangle of three of the points (Caratheodory),
+    so test all 56 triangles, plus the 28 segments and 8 points for hulls that are degenerate
+    (one or two touching soles, or soles in a line). Pure and jittable."""
+    a, b, c = pts[_TRI[:, 0]], pts[_TRI[:, 1]], pts[_TRI[:, 2]]
+
+    def cross(u, v):
+        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+    area2 = cross(b - a, c - a)
+    sgn = jnp.where(area2 >= 0, 1.0, -1.0)
+    ok_tri = mask[_TRI].all(axis=1) & (jnp.abs(area2) > 1e-8)
+    inside = jnp.ones(len(_TRI), bool)
+    for s, e in ((a, b), (b, c), (c, a)):  # signed distance of p from each edge, inward positive
+        edge = e - s
+        dist = sgn * cross(edge, p - s) / jnp.maximum(jnp.linalg.norm(edge, axis=-1), 1e-9)
+        inside &= dist >= -margin_m
+    s, e = pts[_SEG[:, 0]], pts[_SEG[:, 1]]
+    d = e - s
+    t = jnp.clip(jnp.sum((p - s) * d, -1) / jnp.maximum(jnp.sum(d * d, -1), 1e-12), 0.0, 1.0)
+    near_seg = jnp.linalg.norm(s + t[:, None] * d - p, axis=-1) <= margin_m
+    near_pt = jnp.linalg.norm(pts - p, axis=-1) <= margin_m
+    return (jnp.any(inside & ok_tri) | jnp.any(near_seg & mask[_SEG].all(axis=1))
+            | jnp.any(near_pt & mask))
+
+
+def com_over_feet(body_com, soles, contact, yaw, feet_tol_m, margin_m) -> jax.Array:
+    """The paper's heuristic: CoM over the support polygon and both feet close together.
+
+    `soles` (8, 3) sole centres (left four, right four), `contact` (8,) 1 where touching;
+    "close" = fore-aft distance (along the heading `yaw`) of the feet's centres <= feet_tol_m."""
+    heading = jnp.array([jnp.cos(yaw), jnp.sin(yaw)])
+    left, right = soles[:4, :2].mean(0), soles[4:, :2].mean(0)
+    feet_close = jnp.abs(jnp.dot(left - right, heading)) <= feet_tol_m
+    return feet_close & in_support(body_com[:2], soles[:, :2], contact > 0.5, margin_m)
+
+
+# ----------------------------------------------------------------------- the decision
+def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, u01,
+           rules: Rules) -> tuple[SwitchState, jax.Array]:
+    """One env, one control step: (new controller state, switched now?).
+
+    det_*: the oracle detection (kind -1 when nothing is in range), com_ok: com_over_feet,
+    est_probs (N_TARGETS,): every estimator's output on the current observation, u01: a uniform
+    draw in [0, 1) used when a new artifact is detected (random method)."""
+    seen = det_kind >= 0
+    kind = jnp.maximum(det_kind, 0)
+    new_art = seen & (det_index != ss.art_index)
+    random_m = jnp.where(new_art, u01 * rules.switch_max_m, ss.random_m)
+    target = jnp.where(seen, kind + 1, ss.active)
+    pending = target != ss.active
+    lookup_m = rules.lookup_m[ss.active, kind]
+    fire = jnp.stack([
+        det_dist_m <= random_m,
+        jnp.asarray(True),
+        det_dist_m <= lookup_m,
+        com_ok,
+        est_probs[kind] >= rules.threshold,
+    ])[rules.method]
+    switch = pending & (fire | (det_dist_m <= rules.force_m))
+    new = SwitchState(active=jnp.where(switch, target, ss.active).astype(jnp.int32),
+                      art_index=jnp.where(seen, det_index, ss.art_index).astype(jnp.int32),
+                      random_m=random_m, n_switches=ss.n_switches + switch.astype(jnp.int32))
+    return new, switch
+
+
+# ----------------------------------------------------------------------- multi-policy rollout
+def controller_inputs(env, state, est_apply, est_params, rules: Rules) -> dict:
+    """Batched rule inputs for a batch of env states (detection, CoM over feet, estimators)."""
+    si = jax.vmap(env.switch_inputs)(state)
+    com_ok = jax.vmap(com_over_feet, in_axes=(0, 0, 0, 0, None, None))(
+        si["body_com"], si["soles"], si["contact"], si["yaw"], rules.feet_tol_m, rules.margin_m)
+    if est_apply is None:
+        probs = jnp.zeros((state.obs.shape[0], N_TARGETS))
+    else:
+        probs = jax.vmap(est_apply, in_axes=(0, None))(est_params, state.obs).T  # (B, N_TARGETS)
+    return {**si, "com_ok": com_ok, "est_probs": probs}
+
+
+def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
+                  rng: jax.Array, n_envs: int, horizon: int, track_ids=None,
+                  chunk: int = 50, guide_scale=0.0) -> dict:
+    """Episodes on the env's tracks, each starting with the walk policy and switching by `rules`.
+
+    Runs in chunks of `chunk` steps and stops early once every episode has ended. Returns the
+    per-episode final env metrics, `length` (live steps) and `n_switches`. `guide_scale` > 0
+    turns the scripted gait's guide forces on (tests and diagnostics only)."""
+    k_reset, k_run = jax.random.split(rng)
+    keys = jax.random.split(k_reset, n_envs)
+    if track_ids is None:
+        track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
+    state = jax.vmap(lambda k, i: env.reset(k, track_id=i, guide_scale=guide_scale))(keys, track_ids)
+    carry = (state, init_state(n_envs), jnp.zeros(n_envs), jnp.zeros(n_envs), state.metrics,
+             jnp.zeros((), jnp.int32), k_run)
+
+    def step(c, _):
+        state, ss, length, ended, metrics, t, key = c
+        key, k_u = jax.random.split(key)
+        ci = controller_inputs(env, state, est_apply, est_params, rules)
+        det = ci["detect"]
+        ss, _ = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
+            ss, det["kind"], det["index"], det["dist_m"], ci["com_ok"], ci["est_probs"],
+            jax.random.uniform(k_u, (n_envs,)), rules)
+        action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
+        nxt = jax.vmap(env.step)(state, action)
+        live = ended < 0.5
+        state = jax.tree.map(lambda n, o: jnp.where(live.reshape((-1,) + (1,) * (n.ndim - 1)), n, o),
+                             nxt, state)
+        metrics = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt.metrics, metrics)
+        length = length + live
+        ended = jnp.maximum(ended, nxt.done * live)
+        return (state, ss, length, ended, metrics, t + 1, key), None
+
+    def run_chunk(c):
+        return jax.lax.scan(step, c, None, length=chunk)[0]
+
+    def not_finished(c):  # the horizon is rounded up to whole chunks
+        return (c[5] < horizon) & jnp.any(c[3] < 0.5)
+
+    state, ss, length, ended, metrics, t, _ = jax.lax.while_loop(not_finished, run_chunk, carry)
+    return {**metrics, "length": length, "done": ended, "n_switches": ss.n_switches}
+
+
+def trace_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
+                  rng: jax.Array, track_id, horizon: int, guide_scale=0.0) -> dict:
+    """One episode with a per-step record (for the paper's Fig. 5): time, CoM, soles, contacts,
+    detection, every estimator's output, CoM-over-feet, active policy, switch events."""
+    state = jax.vmap(lambda k: env.reset(k, track_id=track_id, guide_scale=guide_scale))(rng[None])
+    ss = init_state(1)
+
+    def step(c, key):
+        state, ss, ended = c
+        ci = controller_inputs(env, state, est_apply, est_params, rules)
+        det = ci["detect"]
+        ss, switched = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
+            ss, det["kind"], det["index"], det["dist_m"], ci["com_ok"], ci["est_probs"],
+            jax.random.uniform(key, (1,)), rules)
+        action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
+        nxt = jax.vmap(env.step)(state, action)
+        rec = {"time_s": state.info["time_s"][0], "com_x_m": ci["com_x_m"][0],
+               "body_com": ci["body_com"][0], "soles": ci["soles"][0], "contact": ci["contact"][0],
+               "det_kind": det["kind"][0], "det_dist_m": det["dist_m"][0],
+               "est_probs": ci["est_probs"][0], "com_ok": ci["com_ok"][0], "active": ss.active[0],
+               "switched": switched[0], "ended": ended, "fell": nxt.metrics["fell"][0],
+               "success": nxt.metrics["success"][0]}
+        live = ended < 0.5
+        state = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt, state)
+        return (state, ss, jnp.maximum(ended, nxt.done[0] * live)), rec
+
+    _, rec = jax.lax.scan(step, (state, ss, jnp.zeros(())), jax.random.split(rng, horizon))
+    return rec

@@ -1,0 +1,198 @@
+"""Switching rules on synthetic state traces, the support-polygon test against scipy, policy
+selection, and the lookup-table argmax (pure functions; no environment)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial import Delaunay
+
+from biped_switch import policies as pol
+from biped_switch import switching as sw
+from biped_switch import sweep
+
+
+# ----------------------------------------------------------------------- support polygon
+def _ref_in_hull(p, pts):
+    if len(pts) < 3:
+        return False
+    try:
+        return bool(Delaunay(pts).find_simplex(p) >= 0)
+    except Exception:  # degenerate (collinear) point set: no area
+        return False
+
+
+def test_in_support_matches_scipy_on_random_feet():
+    rng = np.random.default_rng(0)
+    f = jax.jit(sw.in_support)
+    agree = 0
+    for _ in range(300):
+        pts = rng.uniform(-0.2, 0.2, (8, 2))
+        mask = rng.random(8) < 0.6
+        p = rng.uniform(-0.25, 0.25, 2)
+        got = bool(f(jnp.asarray(p), jnp.asarray(pts), jnp.asarray(mask), 0.0))
+        assert got == _ref_in_hull(p, pts[mask]), (p, pts[mask])
+        agree += got
+    assert 30 < agree < 270  # both outcomes exercised
+
+
+def test_in_support_hand_cases():
+    sq = jnp.array([[0, 0], [0.2, 0], [0.2, 0.1], [0, 0.1]] * 2, jnp.float32)
+    m4 = jnp.array([1, 1, 1, 1, 0, 0, 0, 0], bool)
+    assert sw.in_support(jnp.array([0.1, 0.05]), sq, m4, 0.0)
+    assert not sw.in_support(jnp.array([0.25, 0.05]), sq, m4, 0.0)
+    assert sw.in_support(jnp.array([0.25, 0.05]), sq, m4, 0.06)  # 5 cm outside, 6 cm margin
+    assert not sw.in_support(jnp.array([0.1, 0.05]), sq, jnp.zeros(8, bool), 0.5)  # airborne
+    # two touching soles: a segment; the CoM 1 cm off it counts only with a margin
+    m2 = jnp.array([1, 1, 0, 0, 0, 0, 0, 0], bool)
+    assert not sw.in_support(jnp.array([0.1, 0.01]), sq, m2, 0.0)
+    assert sw.in_support(jnp.array([0.1, 0.01]), sq, m2, 0.015)
+
+
+def test_com_over_feet_needs_feet_together():
+    left = np.array([[0.1, 0.1], [0.1, 0.05], [-0.1, 0.1], [-0.1, 0.05]])
+    soles = np.concatenate([left, left - [0, 0.2]])
+    soles3 = jnp.asarray(np.c_[soles, np.zeros(8)], jnp.float32)
+    com = jnp.array([0.0, -0.05, 0.9])
+    on = jnp.ones(8)
+    assert sw.com_over_feet(com, soles3, on, 0.0, 0.1, 0.0)
+    apart = soles3.at[4:, 0].add(0.3)  # right foot 0.3 m ahead
+    assert not sw.com_over_feet(com, apart, on, 0.0, 0.1, 0.0)
+    # heading 90 degrees: the 0.3 m x offset is now lateral, and "fore-aft" is y (0.2 m apart)
+    assert not sw.com_over_feet(com, soles3, on, jnp.pi / 2, 0.1, 0.0)
+    assert sw.com_over_feet(com, soles3, on, jnp.pi / 2, 0.25, 0.0)
+
+
+# ----------------------------------------------------------------------- decisions on traces
+def _run(method, dists, kinds, com_ok=None, est=None, lookup=None, active0=0, u01=0.5):
+    """Feeds a synthetic approach (detections per step) through `decide`; returns switch steps."""
+    rules = sw.make_rules(method, lookup_m=lookup)
+    ss = sw.SwitchState(jnp.int32(active0), jnp.int32(-1), jnp.float32(0), jnp.int32(0))
+    n = len(dists)
+    com_ok = np.zeros(n, bool) if com_ok is None else com_ok
+    est = np.zeros((n, 3)) if est is None else est
+    out, actives = [], []
+    f = jax.jit(sw.decide)
+    for t in range(n):
+        ss, s = f(ss, jnp.int32(kinds[t]), jnp.int32(0 if kinds[t] >= 0 else -1),
+                  jnp.float32(dists[t]), jnp.bool_(com_ok[t]), jnp.asarray(est[t], jnp.float32),
+                  jnp.float32(u01), rules)
+        if s:
+            out.append(t)
+        actives.append(int(ss.active))
+    return out, actives, ss
+
+
+# approach of a gap (code 1 -> policy 2): 1.2 m away, 2 cm per step, undetected beyond 0.9 m
+DISTS = np.round(np.arange(1.2, -0.1, -0.02), 4)
+KINDS = np.where(DISTS <= 0.9, 1, -1)
+FIRST_SEEN = int(np.argmax(KINDS >= 0))
+
+
+def test_detection_switches_at_first_sight():
+    steps, actives, ss = _run("detection", DISTS, KINDS)
+    assert steps == [FIRST_SEEN]
+    assert actives[FIRST_SEEN - 1] == 0 and actives[FIRST_SEEN] == 2 and int(ss.n_switches) == 1
+
+
+def test_random_switches_at_drawn_distance():
+    steps, _, _ = _run("random", DISTS, KINDS, u01=0.5)  # 0.45 m
+    assert DISTS[steps[0]] <= 0.45 < DISTS[steps[0] - 1]
+
+
+def test_lookup_uses_active_target_entry():
+    lookup = np.full((4, 3), 0.05)
+    lookup[0, 1] = 0.3  # walk -> gaps at 0.30 m
+    steps, _, _ = _run("lookup", DISTS, KINDS, lookup=lookup)
+    assert DISTS[steps[0]] <= 0.3 < DISTS[steps[0] - 1]
+    steps, _, _ = _run("lookup", DISTS, KINDS, lookup=lookup, active0=1)  # from jumps: 0.05 m
+    assert DISTS[steps[0]] <= 0.05 < DISTS[steps[0] - 1]
+
+
+def test_estimator_threshold_and_force_switch():
+    est = np.zeros((len(DISTS), 3))
+    at = FIRST_SEEN + 10
+    est[at:, 1] = 0.9  # gap estimator confident from step `at`
+    est[:, 0] = 0.99  # other estimators are ignored
+    steps, _, _ = _run("estimator", DISTS, KINDS, est=est)
+    assert steps == [at]
+    est[at:, 1] = 0.84  # below 0.85: never fires, forced at 1 cm
+    steps, _, _ = _run("estimator", DISTS, KINDS, est=est)
+    assert len(steps) == 1 and DISTS[steps[0]] <= 0.01 < DISTS[steps[0] - 1]
+
+
+def test_com_over_feet_rule_and_force_switch():
+    ok = np.zeros(len(DISTS), bool)
+    ok[3] = True  # before detection: ignored
+    ok[FIRST_SEEN + 7] = True
+    steps, _, _ = _run("com_over_feet", DISTS, KINDS, com_ok=ok)
+    assert steps == [FIRST_SEEN + 7]
+    steps, _, _ = _run("com_over_feet", DISTS, KINDS, com_ok=np.zeros(len(DISTS), bool))
+    assert DISTS[steps[0]] <= 0.01 < DISTS[steps[0] - 1]
+
+
+def test_no_switch_when_already_on_target_policy():
+    steps, _, _ = _run("detection", DISTS, KINDS, active0=2)
+    assert steps == []
+
+
+def test_new_artifact_gets_new_random_distance_and_switches_again():
+    rules = sw.make_rules("random")
+    ss = sw.SwitchState(jnp.int32(2), jnp.int32(0), jnp.float32(0.4), jnp.int32(1))
+    # next artifact (index 1, stairs) comes into view at 0.9 m with u = 0.1 -> switch at 0.09 m
+    ss, s = sw.decide(ss, jnp.int32(2), jnp.int32(1), jnp.float32(0.9), False, jnp.zeros(3), 0.1, rules)
+    assert not s and float(ss.random_m) == pytest.approx(0.09) and int(ss.art_index) == 1
+    ss, s = sw.decide(ss, jnp.int32(2), jnp.int32(1), jnp.float32(0.08), False, jnp.zeros(3), 0.9, rules)
+    assert s and int(ss.active) == 3 and float(ss.random_m) == pytest.approx(0.09)
+
+
+def test_make_rules_errors():
+    with pytest.raises(ValueError, match="unknown switching method"):
+        sw.make_rules("telepathy")
+    with pytest.raises(ValueError, match="lookup table"):
+        sw.make_rules("lookup")
+    with pytest.raises(ValueError, match="must be"):
+        sw.make_rules("lookup", lookup_m=np.zeros((3, 3)))
+
+
+# ----------------------------------------------------------------------- policy suite selection
+def test_all_actions_and_select():
+    def apply(p, obs):
+        return jnp.tanh(obs[:, :2] @ p["w"])
+
+    params = pol.stack([{"w": jnp.full((2, 12), float(i))} for i in range(4)])
+    obs = jnp.asarray(np.random.default_rng(1).normal(size=(5, 7)), jnp.float32)
+    acts = pol.all_actions(apply, params, obs)
+    assert acts.shape == (4, 5, 12)
+    active = jnp.array([0, 3, 1, 2, 3])
+    got = pol.select(acts, active)
+    for b in range(5):
+        np.testing.assert_allclose(got[b], apply({"w": jnp.full((2, 12), float(active[b]))},
+                                                 obs[b:b + 1])[0], rtol=1e-6)
+
+
+# ----------------------------------------------------------------------- lookup tables
+def test_lookup_table_rates_and_argmax_by_hand():
+    # walk -> gaps: 3 samples at 0.305 m (2 succeed), 2 at 0.601 m (both succeed), 1 at 0.0 (fail)
+    dist = np.array([0.305, 0.305, 0.305, 0.601, 0.601, 0.0, 0.2, 0.2])
+    label = np.array([1, 1, 0, 1, 1, 0, 1, 0])
+    source = np.array([0, 0, 0, 0, 0, 0, 3, 3])  # stairs -> gaps: 1 of 2 at 0.2 m
+    t = sweep.lookup_table(dist, label, source, "gaps")
+    assert t["rate"].shape == (4, 90)
+    assert t["rate"][0, 30] == pytest.approx(2 / 3) and t["count"][0, 30] == 3
+    assert t["rate"][0, 60] == 1.0 and t["rate"][0, 0] == 0.0
+    assert np.isnan(t["rate"][0, 45])  # no data in that bin
+    assert t["best_m"][0] == pytest.approx(0.605)  # bin [0.60, 0.61)
+    assert t["best_m"][3] == pytest.approx(0.205)
+    assert np.isnan(t["best_m"][2])  # gaps -> gaps: not a switch
+    assert np.isnan(t["best_m"][1])  # no data from jumps
+    m = sweep.lookup_matrix({"gaps": t})
+    assert m.shape == (4, 3) and m[0, 1] == pytest.approx(0.605) and np.isnan(m[0, 0])
+
+
+def test_lookup_ties_go_to_the_earliest_switch():
+    t = sweep.lookup_table(np.array([0.1, 0.5, 0.7]), np.array([1, 1, 1]), np.array([0, 0, 0]),
+                           "jumps")
+    assert t["best_m"][0] == pytest.approx(0.705)
