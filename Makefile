@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-all bench bench-1art train train-all render-deps wheels clean
+.PHONY: install demo test test-all bench bench-1art train train-all render-deps wheels clean train-estimators
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -62,3 +62,10 @@ wheels:
 
 clean:
 	rm -rf $(VENV) .pytest_cache *.egg-info
+
+# Switch estimators (paper Sec. III-C), one per target policy, from the sweeps' runs/sweeps/<init>/<target>.npz
+# (made by `python -m biped_switch.sweep`). ESTIMATOR_ARGS e.g. "--epochs 100".
+ESTIMATOR_ARGS ?=
+train-estimators: $(STAMP)
+	$(PY) -m biped_switch.estimator --init stand $(ESTIMATOR_ARGS)
+	$(PY) -m biped_switch.estimator --init random $(ESTIMATOR_ARGS)

@@ -9,6 +9,17 @@ finish line without falling), each with a 95% confidence interval (normal interv
 distance, Wilson score interval for success), prints a Markdown table and saves it with a CSV and a
 JSON of the settings under experiments/results/table1/.
 Policies load from `<runs>/<policy>_<init>/checkpoints/<latest>` (or models/policies/).
+
+    python -m biped_switch.evaluate multi [--trials 2500] [--methods random detection ...]
+
+`multi` (Table II): every method on the same `mixed` tracks (7 artifacts, no kind twice in a
+row, >= 0.9 m of flat before each; trial i uses track i and rng seed + batch start), each trial
+starting with the walk policy; the methods differ only in when they switch (switching.py). The
+stand-init suite is used for every method but `estimator_no_overlap`, which uses the random-init
+policies and their estimators and starts from random joints with no pause, as they were trained.
+Reports % distance, % success and % of trials failing on gaps / jumps / stairs, with 95% CIs;
+saves Markdown, CSV and JSON under experiments/results/table2/, plus the paper's Fig. 5 (one
+trial of the estimator method over time) as fig5_trial<i>.png.
 """
 
 from __future__ import annotations
@@ -115,6 +126,171 @@ def table1_markdown(rows: list[dict]) -> str:
 
 
 EVAL_TRACK_SEED = 10_000  # evaluation tracks never overlap training tracks (seeds 0..n_tracks-1)
+MULTI_TRACK_SEED = 30_000  # Table II tracks (sweeps use 20,000..)
+
+PAPER_TABLE2 = {  # % total dist., % success, % gap / jump / stair fail (Tidd et al., Table II)
+    "random": (42.7, 10.1, 70.6, 11.6, 7.6),
+    "detection": (75.6, 60.1, 21.4, 3.3, 15.2),
+    "lookup": (76.3, 59.0, 21.2, 4.7, 14.9),
+    "com_over_feet": (79.1, 66.8, 17.6, 2.7, 12.9),
+    "estimator": (82.4, 71.4, 16.7, 2.4, 9.4),
+    "estimator_no_overlap": (17.5, 0.7, 58.6, 12.9, 27.7),
+    "dqn": (83.2, 72.4, 15.1, 3.7, 8.8),
+    "end_to_end": (92.7, 90.2, 4.2, 1.8, 3.7),
+}
+MULTI_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
+                 "estimator_no_overlap")
+
+
+def _estimators(init: str, model_dir: str):
+    from biped_switch import estimator as est_lib
+
+    params, metas = est_lib.load_estimator_set(init, model_dir)
+    return est_lib.predict, params, metas
+
+
+class MultiSetup:
+    """Env, policy suite, estimators and lookup table of one init mode, and its compiled rollout."""
+
+    def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
+                 est_dir, lookup_dir, need_estimators: bool, need_lookup: bool):
+        from biped_switch import policies as pol
+        from biped_switch import sweep
+        from biped_switch import switching as sw
+
+        self.init = init
+        self.env = env_lib.make_env("mixed", init, n_tracks=trials, seed=MULTI_TRACK_SEED)
+        self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in)
+        self.est_apply, self.est_params, self.est_meta = None, None, None
+        if need_estimators:
+            self.est_apply, self.est_params, self.est_meta = _estimators(init, est_dir)
+        self.lookup_m = sweep.load_lookup(init, lookup_dir) if need_lookup else None
+        self.horizon = int(round(horizon_s / self.env.dt))
+        from biped_switch.rollout import over_devices
+
+        env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon
+
+        def one(suite_params, est_params, rules, rng, ids):
+            return sw.multi_rollout(env, apply, suite_params, est_apply, est_params, rules, rng,
+                                    ids.shape[0], horizon, track_ids=ids)
+
+        self.run = over_devices(one, n_shared=3)
+        self.batch = batch
+
+    def evaluate(self, method: str, trials: int, seed: int) -> dict:
+        from biped_switch import switching as sw
+
+        rules = sw.make_rules(method, lookup_m=self.lookup_m)
+        results = []
+        for start in range(0, trials, self.batch):
+            ids = jax.numpy.arange(start, start + self.batch, dtype=jax.numpy.int32) % trials
+            results.append(jax.device_get(self.run(self.suite.params, self.est_params, rules,
+                                                   jax.random.PRNGKey(seed + start), ids)))
+        return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
+
+
+def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
+                   stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
+                   print_fn=print) -> tuple[list, dict]:
+    """Table II rows (dicts) for `methods`, and the MultiSetup per init mode used."""
+    setups, rows = {}, []
+    for method in methods:
+        init = "random" if method == "estimator_no_overlap" else "stand"
+        rule = "estimator" if method == "estimator_no_overlap" else method
+        if init not in setups:
+            need_est = any(m.startswith("estimator") for m in methods)
+            setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
+                                      lookup_dir, need_est, "lookup" in methods and init == "stand")
+        t0 = time.perf_counter()
+        merged = setups[init].evaluate(rule, trials, seed)
+        row = episode_table(merged)
+        row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
+                   switches_per_trial=float(np.mean(merged["n_switches"])),
+                   policies=list(setups[init].suite.sources))
+        rows.append(row)
+        print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
+                 f"  ({row['wall_s']:.0f} s)")
+    return rows, setups
+
+
+def table2_markdown(rows: list[dict]) -> str:
+    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail | "
+             "% jump fail | % stair fail | paper (dist. / success / gap / jump / stair) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        paper = PAPER_TABLE2.get(r["method"])
+        f = r["fail_on"]
+        lines.append(
+            f"| {r['method']} | {r['n']} | {r['distance_pct']:.1f} ({r['distance_ci'][0]:.1f}-"
+            f"{r['distance_ci'][1]:.1f}) | {r['success_pct']:.1f} ({r['success_ci'][0]:.1f}-"
+            f"{r['success_ci'][1]:.1f}) | {f['gaps']:.1f} | {f['jumps']:.1f} | {f['stairs']:.1f} | "
+            + (" / ".join(f"{v}" for v in paper) if paper else "-") + " |")
+    return "\n".join(lines)
+
+
+def trace_trial(setup: "MultiSetup", method: str, trial: int, seed: int) -> dict:
+    from biped_switch import switching as sw
+
+    rules = sw.make_rules(method, lookup_m=setup.lookup_m)
+    f = jax.jit(functools.partial(sw.trace_rollout, setup.env, setup.suite.apply,
+                                  est_apply=setup.est_apply, horizon=setup.horizon))
+    rec = jax.device_get(f(suite_params=setup.suite.params, est_params=setup.est_params,
+                           rules=rules, rng=jax.random.PRNGKey(seed + trial), track_id=trial))
+    return {k: np.asarray(v) for k, v in rec.items()}
+
+
+def plot_trial(rec: dict, track, path: pathlib.Path, title: str = "") -> None:
+    """The paper's Fig. 5: estimator outputs from detection on (green lines: detections, red:
+    switches), and the terrain under the robot with foot and CoM heights, CoM-over-feet marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from biped_switch import terrain
+
+    live = np.flatnonzero(rec["ended"] < 0.5)
+    n = int(live[-1]) + 1 if len(live) else 1
+    t = np.arange(n)
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
+    kind = rec["det_kind"][:n]
+    colours = {"jumps": "tab:orange", "gaps": "tab:purple", "stairs": "tab:brown"}
+    for k, name in enumerate(terrain.ARTIFACT_KINDS):
+        e = np.where(kind == k, rec["est_probs"][:n, k], np.nan)
+        ax0.plot(t, e, color=colours[name], label=f"E_{name}")
+    new_det = np.flatnonzero((kind >= 0) & (np.r_[-1, kind[:-1]] != kind))
+    for i in new_det:
+        ax0.axvline(i, color="g", lw=1)
+        ax1.axvline(i, color="g", lw=1)
+    for i in np.flatnonzero(rec["switched"][:n]):
+        ax0.axvline(i, color="r", lw=1)
+        ax1.axvline(i, color="r", lw=1)
+    ax0.axhline(0.85, color="k", ls=":", lw=0.8)
+    ax0.set_ylabel("switch estimate")
+    ax0.set_ylim(-0.02, 1.02)
+    ax0.legend(fontsize=8, loc="lower right")
+    boxes = track.boxes
+    x = rec["com_x_m"][:n]
+    lo, hi = boxes[:, 0] - boxes[:, 3], boxes[:, 0] + boxes[:, 3]
+    top = boxes[:, 2] + boxes[:, 5]
+    ground = np.array([np.max(np.where((lo <= xi) & (xi <= hi), top, -1.0)) for xi in x])
+    ax1.fill_between(t, -1.0, ground, color="pink", step="mid", label="terrain under the CoM")
+    soles_z = rec["soles"][:n, :, 2]
+    ax1.plot(t, soles_z[:, :4].mean(1), color="tab:blue", lw=1, label="left foot")
+    ax1.plot(t, soles_z[:, 4:].mean(1), color="tab:green", lw=1, label="right foot")
+    com_z = rec["body_com"][:n, 2]
+    ax1.plot(t, np.where(rec["com_ok"][:n], com_z, np.nan), "r.", ms=2, label="CoM (over feet)")
+    ax1.plot(t, com_z, color="r", lw=0.3)
+    ax1.set_ylim(min(-0.8, ground.min() - 0.1), com_z.max() + 0.2)
+    ax1.set_ylabel("height [m]")
+    ax1.set_xlabel("control step (20 ms)")
+    ax1.legend(fontsize=8, loc="upper right", ncol=4)
+    outcome = "success" if rec["success"][:n].max() > 0.5 else ("fell" if rec["fell"][:n].max() > 0.5
+                                                               else "time limit")
+    fig.suptitle(f"{title} ({outcome})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -130,7 +306,22 @@ def main(argv=None) -> int:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--runs", default="runs")
     s.add_argument("--out", default="experiments/results/table1")
+    m = sub.add_parser("multi", help="Table II: switching methods on multi-artifact tracks")
+    m.add_argument("--methods", nargs="+", default=list(MULTI_METHODS), choices=MULTI_METHODS)
+    m.add_argument("--trials", type=int, default=2500)
+    m.add_argument("--batch", type=int, default=250, help="episodes per jitted rollout")
+    m.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--runs", default="runs")
+    m.add_argument("--estimators", default="models/estimators")
+    m.add_argument("--lookup", default="experiments/results/lookup")
+    m.add_argument("--stand-in", default=None, choices=train_lib.POLICIES,
+                   help="use this policy for any that is not trained yet (pipeline checks only)")
+    m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 (-1: none)")
+    m.add_argument("--out", default="experiments/results/table2")
     a = p.parse_args(argv)
+    if a.cmd == "multi":
+        return _main_multi(a, p)
     if a.trials < 1 or a.batch < 1:
         p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
     rows, missing = [], []
@@ -165,6 +356,49 @@ def main(argv=None) -> int:
                         r["success_pct"], *r["success_ci"], r["checkpoint"], r["train_step"]])
     (out / "table1.json").write_text(json.dumps({"settings": vars(a), "rows": rows}, indent=2,
                                                 default=str))
+    return 0
+
+
+def _main_multi(a, p) -> int:
+    from biped_switch import terrain
+
+    if a.trials < 1 or a.batch < 1:
+        p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
+    batch = min(a.batch, a.trials)
+    t0 = time.perf_counter()
+    print(f"Table II: {len(a.methods)} methods x {a.trials} trials of mixed tracks (batch {batch}, "
+          f"{jax.local_device_count()} {jax.devices()[0].platform} device(s))", flush=True)
+    rows, setups = evaluate_multi(a.methods, a.trials, batch, a.horizon_s, a.seed, a.runs,
+                                  a.stand_in, a.estimators, a.lookup,
+                                  print_fn=lambda *s: print(*s, flush=True))
+    md = table2_markdown(rows)
+    print(md)
+    out = pathlib.Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table2.md").write_text(md + "\n")
+    with (out / "table2.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["method", "init", "trials", "distance_pct", "distance_lo", "distance_hi",
+                    "success_pct", "success_lo", "success_hi", "gap_fail_pct", "jump_fail_pct",
+                    "stair_fail_pct", "switches_per_trial", "wall_s"])
+        for r in rows:
+            w.writerow([r["method"], r["init"], r["n"], r["distance_pct"], *r["distance_ci"],
+                        r["success_pct"], *r["success_ci"], r["fail_on"]["gaps"],
+                        r["fail_on"]["jumps"], r["fail_on"]["stairs"], r["switches_per_trial"],
+                        r["wall_s"]])
+    wall = time.perf_counter() - t0
+    (out / "table2.json").write_text(json.dumps(
+        {"settings": vars(a), "rows": rows, "wall_s": wall, "device": str(jax.devices()[0]),
+         "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
+    if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
+        s = setups["stand"]
+        rec = trace_trial(s, "estimator", a.fig5_trial % a.trials, a.seed)
+        track = terrain.generate_track(MULTI_TRACK_SEED + a.fig5_trial % a.trials, "mixed", 1.0)
+        path = out / f"fig5_trial{a.fig5_trial}.png"
+        plot_trial(rec, track, path, f"estimator switching, trial {a.fig5_trial}")
+        print(f"wrote {path}")
+    print(json.dumps({"table2_wall_s": round(wall, 1), "trials": a.trials,
+                      "methods": len(a.methods)}))
     return 0
 
 

@@ -51,3 +51,28 @@ def summarize(result: dict, horizon: int) -> dict:
     out = {k: float(jnp.mean(v)) for k, v in result.items()}
     out["reward_per_step"] = float(jnp.mean(result["reward"]) / horizon)
     return out
+
+
+def over_devices(fn: Callable, n_shared: int) -> Callable:
+    """`fn(*shared, rng, *batched)` run with the batch split over every local device (pmap).
+
+    `shared` arguments (parameters) are broadcast; `rng` is split per device; each `batched`
+    array's leading axis is split evenly. With one device this is plain jit."""
+    n_dev = jax.local_device_count()
+    if n_dev == 1:
+        return jax.jit(fn)
+    cache = {}
+
+    def run(*args):
+        shared, rng, batched = args[:n_shared], args[n_shared], args[n_shared + 1:]
+        if len(args) not in cache:
+            cache[len(args)] = jax.pmap(fn, in_axes=(None,) * n_shared + (0,) * (1 + len(batched)))
+        pf = cache[len(args)]
+        n = batched[0].shape[0]
+        if n % n_dev:
+            raise ValueError(f"batch {n} must divide evenly over {n_dev} devices")
+        split = [x.reshape((n_dev, n // n_dev) + x.shape[1:]) for x in batched]
+        out = pf(*shared, jax.random.split(rng, n_dev), *split)
+        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out)
+
+    return run

@@ -35,6 +35,7 @@ from biped_switch import env as env_lib
 from biped_switch import policies as pol
 from biped_switch import terrain
 from biped_switch.config import default_sweep_config, default_terrain_config
+from biped_switch.rollout import over_devices
 
 SWEEP_TRACK_SEED = 20_000  # sweep tracks: disjoint from training (0..) and evaluation (10,000..)
 N_WINDOW = 5
@@ -109,7 +110,7 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
         state = c["state"]
         si = jax.vmap(env.switch_inputs)(state)
         det = si["detect"]
-        live = ~c["ended"]
+        live = ~c["ended"] & (c["t"] < horizon)  # the last chunk may run past the horizon
         now = live & ~c["switched"] & (det["kind"] >= 0) & (det["dist_m"] <= switch_at)
         active = jnp.where(now, target, c["active"])
         dist_m = jnp.where(now, det["dist_m"], c["dist_m"])
@@ -152,8 +153,7 @@ def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0):
 
 
 def make_runner(env, apply, target: str, cfg):
-    """jit/pmap'ed (params, rng, track_ids, sources) -> batch results, over all local devices."""
-    n_dev = jax.local_device_count()
+    """(params, rng, track_ids, sources) -> batch results, split over all local devices."""
     horizon = int(round(cfg.horizon_s / env.dt))
     tgt = pol.POLICY_INDEX[target]
 
@@ -161,19 +161,7 @@ def make_runner(env, apply, target: str, cfg):
         return sweep_rollout(env, apply, params, rng, ids, src, tgt, cfg.switch_max_m,
                              cfg.steps_past, horizon)
 
-    if n_dev == 1:
-        f = jax.jit(one)
-        return lambda params, rng, ids, src: f(params, rng, ids, src)
-    pf = jax.pmap(one, in_axes=(None, 0, 0, 0))
-
-    def run(params, rng, ids, src):
-        if ids.shape[0] % n_dev:
-            raise ValueError(f"batch {ids.shape[0]} must divide over {n_dev} devices")
-        split = lambda x: x.reshape((n_dev, -1) + x.shape[1:])  # noqa: E731
-        out = pf(params, jax.random.split(rng, n_dev), split(ids), split(src))
-        return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out)
-
-    return run
+    return over_devices(one, n_shared=1)
 
 
 # ----------------------------------------------------------------------- lookup tables

@@ -191,7 +191,7 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
             jax.random.uniform(k_u, (n_envs,)), rules)
         action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
         nxt = jax.vmap(env.step)(state, action)
-        live = ended < 0.5
+        live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
         state = jax.tree.map(lambda n, o: jnp.where(live.reshape((-1,) + (1,) * (n.ndim - 1)), n, o),
                              nxt, state)
         metrics = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt.metrics, metrics)
@@ -202,7 +202,7 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
     def run_chunk(c):
         return jax.lax.scan(step, c, None, length=chunk)[0]
 
-    def not_finished(c):  # the horizon is rounded up to whole chunks
+    def not_finished(c):
         return (c[5] < horizon) & jnp.any(c[3] < 0.5)
 
     state, ss, length, ended, metrics, t, _ = jax.lax.while_loop(not_finished, run_chunk, carry)
