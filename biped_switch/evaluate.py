@@ -153,7 +153,8 @@ class MultiSetup:
     """Env, policy suite, estimators and lookup table of one init mode, and its compiled rollout."""
 
     def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
-                 est_dir, lookup_dir, need_estimators: bool, need_lookup: bool):
+                 est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
+                 guide_scale: float = 0.0):
         from biped_switch import policies as pol
         from biped_switch import sweep
         from biped_switch import switching as sw
@@ -172,10 +173,11 @@ class MultiSetup:
 
         def one(suite_params, est_params, rules, rng, ids):
             return sw.multi_rollout(env, apply, suite_params, est_apply, est_params, rules, rng,
-                                    ids.shape[0], horizon, track_ids=ids)
+                                    ids.shape[0], horizon, track_ids=ids, guide_scale=guide_scale)
 
         self.run = over_devices(one, n_shared=3)
         self.batch = batch
+        self.guide_scale = guide_scale
 
     def evaluate(self, method: str, trials: int, seed: int) -> dict:
         from biped_switch import switching as sw
@@ -191,7 +193,7 @@ class MultiSetup:
 
 def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
                    stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
-                   print_fn=print) -> tuple[list, dict]:
+                   print_fn=print, guide_scale: float = 0.0) -> tuple[list, dict]:
     """Table II rows (dicts) for `methods`, and the MultiSetup per init mode used."""
     setups, rows = {}, []
     for method in methods:
@@ -200,7 +202,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         if init not in setups:
             need_est = any(m.startswith("estimator") for m in methods)
             setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
-                                      lookup_dir, need_est, "lookup" in methods and init == "stand")
+                                      lookup_dir, need_est, "lookup" in methods and init == "stand",
+                                      guide_scale)
         t0 = time.perf_counter()
         merged = setups[init].evaluate(rule, trials, seed)
         row = episode_table(merged)
@@ -233,7 +236,8 @@ def trace_trial(setup: "MultiSetup", method: str, trial: int, seed: int) -> dict
 
     rules = sw.make_rules(method, lookup_m=setup.lookup_m)
     f = jax.jit(functools.partial(sw.trace_rollout, setup.env, setup.suite.apply,
-                                  est_apply=setup.est_apply, horizon=setup.horizon))
+                                  est_apply=setup.est_apply, horizon=setup.horizon,
+                                  guide_scale=setup.guide_scale))
     rec = jax.device_get(f(suite_params=setup.suite.params, est_params=setup.est_params,
                            rules=rules, rng=jax.random.PRNGKey(seed + trial), track_id=trial))
     return {k: np.asarray(v) for k, v in rec.items()}
@@ -317,11 +321,27 @@ def main(argv=None) -> int:
     m.add_argument("--lookup", default="experiments/results/lookup")
     m.add_argument("--stand-in", default=None, choices=train_lib.POLICIES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
+    m.add_argument("--guide-scale", type=float, default=0.0,
+                   help="scripted guide forces on (pipeline checks with untrained policies only)")
     m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 (-1: none)")
     m.add_argument("--out", default="experiments/results/table2")
+    r = sub.add_parser("retrain-cost", help="Table III: hours to add a new terrain, from logs")
+    r.add_argument("--runs", default="runs")
+    r.add_argument("--results", default="experiments/results")
+    r.add_argument("--init", default="stand", choices=env_lib.INITS)
+    r.add_argument("--out", default="experiments/results/table3")
     a = p.parse_args(argv)
     if a.cmd == "multi":
         return _main_multi(a, p)
+    if a.cmd == "retrain-cost":
+        doc = retrain_cost(pathlib.Path(a.runs), pathlib.Path(a.results), a.init)
+        md = table3_markdown(doc)
+        print(md)
+        out = pathlib.Path(a.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "table3.json").write_text(json.dumps(doc, indent=2))
+        (out / "table3.md").write_text(md + "\n")
+        return 0
     if a.trials < 1 or a.batch < 1:
         p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
     rows, missing = [], []
@@ -359,6 +379,84 @@ def main(argv=None) -> int:
     return 0
 
 
+PAPER_TABLE3_H = {"ours": 20.0, "dqn": 25.0, "end_to_end": 34.0}  # hours, CPU (Tidd et al.)
+
+
+def _run_wall_s(run_dir: pathlib.Path):
+    """(wall seconds, device, step) recorded in a run's latest checkpoint, or None."""
+    ckpt = train_lib.latest_checkpoint(run_dir)
+    if ckpt is None:
+        return None
+    prog = json.loads((ckpt / "progress.json").read_text())
+    return float(prog["wall_s"]), prog.get("device", "?"), int(prog.get("step", 0))
+
+
+def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand") -> dict:
+    """Table III from recorded logs: hours to add a new terrain to a two-behaviour suite.
+
+    ours: one new policy (the mean training wall time of the artifact policies) plus, for each
+    of the three policies' switch estimators, its sweep and its training; DQN: the new policy
+    plus retraining the selector; end-to-end: retraining the single policy. A missing log leaves
+    the row's total empty and says what is missing."""
+    rows, missing = [], []
+    pol_s = {}
+    for p in ("jumps", "gaps", "stairs"):
+        for base in (runs, pathlib.Path("models/policies")):
+            r = _run_wall_s(base / f"{p}_{init}")
+            if r is not None:
+                pol_s[p] = r
+                break
+        else:
+            missing.append(f"policy {p}_{init}")
+    policy_h = np.mean([v[0] for v in pol_s.values()]) / 3600 if pol_s else None
+    sweep_h, est_h = {}, {}
+    lookup = results / "lookup" / f"lookup_{init}.json"
+    sweeps = json.loads(lookup.read_text())["meta"].get("sweeps", {}) if lookup.exists() else {}
+    for k in ("jumps", "gaps", "stairs"):
+        if k in sweeps:
+            sweep_h[k] = sweeps[k]["wall_s"] / 3600
+        else:
+            missing.append(f"sweep {init}/{k}")
+        e = results / "estimators" / f"{init}_{k}.json"
+        if e.exists():
+            est_h[k] = json.loads(e.read_text())["train_s"] / 3600
+        else:
+            missing.append(f"estimator {init}_{k}")
+    ours_parts = {"new policy": policy_h, **{f"sweep {k}": v for k, v in sweep_h.items()},
+                  **{f"estimator {k}": v for k, v in est_h.items()}}
+    ours_ok = policy_h is not None and len(sweep_h) == 3 and len(est_h) == 3
+    devices = sorted({v[1] for v in pol_s.values()})
+    rows.append({"method": "ours", "hours": sum(ours_parts.values()) if ours_ok else None,
+                 "parts": ours_parts, "device": ", ".join(devices) or "?",
+                 "paper_hours": PAPER_TABLE3_H["ours"]})
+    dqn = _run_wall_s(runs / f"dqn_{init}")
+    if dqn is None:
+        missing.append(f"DQN run {runs / f'dqn_{init}'}")
+    rows.append({"method": "dqn", "hours": policy_h + dqn[0] / 3600 if dqn and policy_h else None,
+                 "parts": {"new policy": policy_h, "selector": dqn[0] / 3600 if dqn else None},
+                 "device": dqn[1] if dqn else "?", "paper_hours": PAPER_TABLE3_H["dqn"]})
+    e2e = _run_wall_s(runs / f"mixed_{init}")
+    if e2e is None:
+        missing.append(f"end-to-end run {runs / f'mixed_{init}'}")
+    rows.append({"method": "end_to_end", "hours": e2e[0] / 3600 if e2e else None,
+                 "parts": {"policy": e2e[0] / 3600 if e2e else None},
+                 "device": e2e[1] if e2e else "?", "paper_hours": PAPER_TABLE3_H["end_to_end"]})
+    return {"rows": rows, "missing": missing, "init": init,
+            "notes": "hours of wall-clock time read from progress.json / sweep and estimator logs"}
+
+
+def table3_markdown(doc: dict) -> str:
+    lines = ["| method | hours (ours) | parts [h] | device | paper [h, CPU] |", "|---|---|---|---|---|"]
+    for r in doc["rows"]:
+        parts = ", ".join(f"{k} {v:.2f}" if v is not None else f"{k} -" for k, v in r["parts"].items())
+        h = f"{r['hours']:.2f}" if r["hours"] is not None else "not measured"
+        lines.append(f"| {r['method']} | {h} | {parts} | {r['device']} | {r['paper_hours']:.0f} |")
+    if doc["missing"]:
+        lines.append("")
+        lines.append("missing logs: " + "; ".join(doc["missing"]))
+    return "\n".join(lines)
+
+
 def _main_multi(a, p) -> int:
     from biped_switch import terrain
 
@@ -370,7 +468,7 @@ def _main_multi(a, p) -> int:
           f"{jax.local_device_count()} {jax.devices()[0].platform} device(s))", flush=True)
     rows, setups = evaluate_multi(a.methods, a.trials, batch, a.horizon_s, a.seed, a.runs,
                                   a.stand_in, a.estimators, a.lookup,
-                                  print_fn=lambda *s: print(*s, flush=True))
+                                  print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale)
     md = table2_markdown(rows)
     print(md)
     out = pathlib.Path(a.out)
@@ -396,6 +494,8 @@ def _main_multi(a, p) -> int:
         track = terrain.generate_track(MULTI_TRACK_SEED + a.fig5_trial % a.trials, "mixed", 1.0)
         path = out / f"fig5_trial{a.fig5_trial}.png"
         plot_trial(rec, track, path, f"estimator switching, trial {a.fig5_trial}")
+        np.savez_compressed(out / f"fig5_trial{a.fig5_trial}.npz", **rec,
+                            track_seed=MULTI_TRACK_SEED + a.fig5_trial % a.trials)
         print(f"wrote {path}")
     print(json.dumps({"table2_wall_s": round(wall, 1), "trials": a.trials,
                       "methods": len(a.methods)}))

@@ -152,14 +152,14 @@ def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0):
                             seed=SWEEP_TRACK_SEED, difficulty=difficulty)
 
 
-def make_runner(env, apply, target: str, cfg):
+def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0):
     """(params, rng, track_ids, sources) -> batch results, split over all local devices."""
     horizon = int(round(cfg.horizon_s / env.dt))
     tgt = pol.POLICY_INDEX[target]
 
     def one(params, rng, ids, src):
         return sweep_rollout(env, apply, params, rng, ids, src, tgt, cfg.switch_max_m,
-                             cfg.steps_past, horizon)
+                             cfg.steps_past, horizon, guide_scale=guide_scale)
 
     return over_devices(one, n_shared=1)
 
@@ -238,7 +238,8 @@ def _split(window: np.ndarray):
 
 
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
-              n_tracks: int = 512, stand_in: str | None = None, print_fn=print) -> pathlib.Path:
+              n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
+              print_fn=print) -> pathlib.Path:
     """Runs (or resumes) the sweep of one target kind; returns the merged npz path."""
     if target not in terrain.ARTIFACT_KINDS:
         raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
@@ -248,17 +249,17 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
     suite = pol.load_suite(init, env, runs, stand_in=stand_in)
     meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
             "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
-            "config": cfg.to_dict(), "window": list(cfg.window)}
+            "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale}
     meta_path = part_dir / "meta.json"
     if meta_path.exists():
         old = json.loads(meta_path.read_text())
-        if {k: old.get(k) for k in ("policies", "seed", "config")} != {
-                k: json.loads(json.dumps(meta[k])) for k in ("policies", "seed", "config")}:
+        keys = ("policies", "seed", "config", "guide_scale")
+        if {k: old.get(k) for k in keys} != {k: json.loads(json.dumps(meta[k])) for k in keys}:
             raise RuntimeError(f"{part_dir} holds parts of a sweep with other policies, seed or "
                                f"config; move it away or pass another --out")
     meta_path.write_text(json.dumps(meta, indent=2, default=str))
     others = np.array([j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]])
-    runner = make_runner(env, suite.apply, target, cfg)
+    runner = make_runner(env, suite.apply, target, cfg, guide_scale)
     parts = sorted(part_dir.glob("part_*.npz"))
     have = sum(int(np.load(p)["label"].shape[0]) for p in parts)
     b = len(parts)
@@ -367,6 +368,8 @@ def main(argv=None) -> int:
     p.add_argument("--results", default="experiments/results/lookup")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
+    p.add_argument("--guide-scale", type=float, default=0.0,
+                   help="scripted guide forces on (pipeline checks with untrained policies only)")
     a = p.parse_args(argv)
     cfg = default_sweep_config()
     if a.points is not None:
@@ -382,7 +385,7 @@ def main(argv=None) -> int:
         print(f"sweep {a.init}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
               f"{jax.local_device_count()} {jax.devices()[0].platform} device(s)", flush=True)
         path = run_sweep(a.init, target, cfg, out, a.runs, a.seed, a.tracks, a.stand_in,
-                         print_fn=lambda *s: print(*s, flush=True))
+                         a.guide_scale, print_fn=lambda *s: print(*s, flush=True))
         data[target] = load_data(path)
         wall = time.perf_counter() - t0
         n = len(data[target]["label"])

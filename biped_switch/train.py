@@ -38,6 +38,9 @@ from biped_switch.config import default_curriculum_config
 from biped_switch.rollout import rollout, summarize
 
 POLICIES = ("walk", "jumps", "gaps", "stairs")
+# "mixed": the end-to-end baseline (issue 5), one policy trained on multi-artifact tracks with the
+# same reward and guided curriculum
+TRAIN_KINDS = POLICIES + ("mixed",)
 
 
 def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
@@ -75,8 +78,8 @@ def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
 
 
 def make_env(cfg, cs: curr_lib.CurriculumState) -> env_lib.BipedEnv:
-    if cfg.policy not in POLICIES:
-        raise ValueError(f"unknown policy {cfg.policy!r}; expected one of {POLICIES}")
+    if cfg.policy not in TRAIN_KINDS:
+        raise ValueError(f"unknown policy {cfg.policy!r}; expected one of {TRAIN_KINDS}")
     return env_lib.make_env(cfg.policy, cfg.init, curriculum_cfg=cfg.curriculum,
                             n_tracks=cfg.n_tracks, seed=cfg.seed, difficulty=float(cs.difficulty),
                             guide_scale=float(cs.guide_scale), push_scale=float(cs.push_scale))
@@ -311,7 +314,8 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.train", description=__doc__.split("\n")[0])
-    p.add_argument("--policy", default="walk", choices=POLICIES)
+    p.add_argument("--policy", default="walk", choices=TRAIN_KINDS,
+                   help="a behaviour policy, or mixed: the end-to-end baseline")
     p.add_argument("--init", default="stand", choices=env_lib.INITS)
     p.add_argument("--preset", default="gpu", choices=("gpu", "cpu"))
     p.add_argument("--total-steps", type=int, default=None)

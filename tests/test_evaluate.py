@@ -1,5 +1,7 @@
 """Table I metrics on hand-made rollouts, against hand-computed values."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -40,3 +42,34 @@ def test_markdown_row_has_paper_figures():
            "curriculum": {"stage_name": "terrain", "difficulty": 0.3, "guide_scale": 1.0}}
     md = ev.table1_markdown([row])
     assert "| gaps | random | 4 | 68.8 (40.0-90.0) | 50.0 (15.0-85.0) | 87.4 | 75.5 |" in md
+
+
+def _fake_run(run_dir, wall_s, device="cuda:0", step=1000):
+    ck = run_dir / "checkpoints" / f"{step:012d}"
+    ck.mkdir(parents=True)
+    (ck / "progress.json").write_text(json.dumps({"wall_s": wall_s, "device": device, "step": step}))
+
+
+def test_retrain_cost_from_logs(tmp_path):
+    runs, res = tmp_path / "runs", tmp_path / "results"
+    _fake_run(runs / "jumps_stand", 1800.0)
+    _fake_run(runs / "gaps_stand", 3600.0)
+    _fake_run(runs / "stairs_stand", 5400.0)  # mean policy: 1 h
+    (res / "lookup").mkdir(parents=True)
+    (res / "lookup" / "lookup_stand.json").write_text(json.dumps({"meta": {"sweeps": {
+        k: {"wall_s": 360.0} for k in ("jumps", "gaps", "stairs")}}}))  # 0.1 h each
+    (res / "estimators").mkdir()
+    for k in ("jumps", "gaps", "stairs"):
+        (res / "estimators" / f"stand_{k}.json").write_text(json.dumps({"train_s": 720.0}))  # 0.2 h
+    doc = ev.retrain_cost(runs, res)
+    rows = {r["method"]: r for r in doc["rows"]}
+    assert rows["ours"]["hours"] == pytest.approx(1.0 + 3 * 0.1 + 3 * 0.2)
+    assert rows["dqn"]["hours"] is None and rows["end_to_end"]["hours"] is None
+    assert any("DQN" in m for m in doc["missing"])
+    _fake_run(runs / "dqn_stand", 7200.0)
+    _fake_run(runs / "mixed_stand", 3 * 3600.0, step=5000)
+    rows = {r["method"]: r for r in ev.retrain_cost(runs, res)["rows"]}
+    assert rows["dqn"]["hours"] == pytest.approx(1.0 + 2.0)
+    assert rows["end_to_end"]["hours"] == pytest.approx(3.0)
+    md = ev.table3_markdown(ev.retrain_cost(runs, res))
+    assert "| ours | 1.90 |" in md and "| end_to_end | 3.00 |" in md
