@@ -296,7 +296,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
         print_fn(f"[sweep {init}/{target}] batch {b}: {n_s}/{batch} valid samples, "
                  f"{100 * np.mean(np.asarray(out['label'])[v]) if n_s else float('nan'):.0f}% "
                  f"success; {have:,}/{cfg.n_points:,} points, {len(part['label']) / dt:,.0f} "
-                 f"points/s this batch ({dt:.1f} s), ~{(cfg.n_points - have) / max(rate, 1e-9) / 60:.1f} "
+                 f"points/s this batch ({dt:.1f} s), ~{max(cfg.n_points - have, 0) / max(rate, 1e-9) / 60:.1f} "
                  f"min left")
         if n_s == 0 and b >= 3 and have == 0:
             raise RuntimeError(f"no valid switch sample in {b} batches: the source policies fall "
