@@ -370,12 +370,16 @@ def main(argv=None) -> int:
                    help="use this policy for any that is not trained yet (pipeline checks only)")
     p.add_argument("--guide-scale", type=float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
+    p.add_argument("--difficulty", type=float, default=None, help="terrain difficulty (default 1)")
     a = p.parse_args(argv)
     cfg = default_sweep_config()
     if a.points is not None:
         cfg.n_points = a.points
     if a.batch is not None:
         cfg.batch = a.batch
+    if a.difficulty is not None:
+        terrain.check_difficulty(a.difficulty)
+        cfg.difficulty = a.difficulty
     if cfg.n_points < 1 or cfg.batch < 1:
         p.error("--points and --batch must be >= 1")
     out = pathlib.Path(a.out)

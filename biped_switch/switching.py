@@ -225,7 +225,8 @@ def trace_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
             jax.random.uniform(key, (1,)), rules)
         action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
         nxt = jax.vmap(env.step)(state, action)
-        rec = {"time_s": state.info["time_s"][0], "com_x_m": ci["com_x_m"][0],
+        rec = {"time_s": state.info["time_s"][0], "qpos": state.pipeline_state.qpos[0],
+               "com_x_m": ci["com_x_m"][0],
                "body_com": ci["body_com"][0], "soles": ci["soles"][0], "contact": ci["contact"][0],
                "det_kind": det["kind"][0], "det_dist_m": det["dist_m"][0],
                "est_probs": ci["est_probs"][0], "com_ok": ci["com_ok"][0], "active": ss.active[0],
