@@ -52,6 +52,9 @@ def main(argv=None) -> int:
     p.add_argument("--runs", default="runs", help="trained policies (then models/policies/)")
     p.add_argument("--estimators", default="models/estimators")
     p.add_argument("--lookup", default="experiments/results/lookup")
+    p.add_argument("--pipeline-check", default="models/pipeline_check",
+                   help="used when no trained walk policy is found: the committed pipeline-check "
+                        "suite (a short CPU walk run and estimators from stand-in sweeps)")
     p.add_argument("--stand-in", default="walk", choices=pol.POLICY_NAMES,
                    help="policy used for any that is not trained (flagged in the output)")
     p.add_argument("--guide-scale", type=float, default=None,
@@ -62,6 +65,12 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     out = pathlib.Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    if evaluate.find_policy("walk", "stand", pathlib.Path(a.runs)) is None:
+        a.runs = a.pipeline_check
+        a.estimators = str(pathlib.Path(a.pipeline_check) / "estimators")
+        a.lookup = "experiments/results/pipeline_check/lookup"
+        print(f"demo: no trained policies in runs/ or models/policies/: using the pipeline-check "
+              f"suite in {a.pipeline_check}/")
     methods, skipped = _available_methods(a.runs, a.estimators, a.lookup)
     if not methods:
         print("demo: nothing to run: " + "; ".join(skipped), file=sys.stderr)
