@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-all bench bench-1art train train-all render-deps wheels clean train-estimators
+.PHONY: install demo test test-all bench bench-1art train train-all render-deps wheels clean train-estimators train-dqn
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -69,3 +69,9 @@ ESTIMATOR_ARGS ?=
 train-estimators: $(STAMP)
 	$(PY) -m biped_switch.estimator --init stand $(ESTIMATOR_ARGS)
 	$(PY) -m biped_switch.estimator --init random $(ESTIMATOR_ARGS)
+
+# DQN selector baseline (paper Sec. IV-C), on mixed tracks over the stand-init policy suite; resumes
+# from runs/dqn_stand/. DQN_ARGS e.g. "--preset cpu --stand-in walk" before all policies exist.
+DQN_ARGS ?=
+train-dqn: $(STAMP)
+	$(PY) -m biped_switch.dqn $(DQN_ARGS)

@@ -419,7 +419,7 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
             missing.append(f"sweep {init}/{k}")
         e = results / "estimators" / f"{init}_{k}.json"
         if e.exists():
-            est_h[k] = json.loads(e.read_text())["train_s"] / 3600
+            est_h[k] = json.loads(e.read_text())["metrics"]["train_s"] / 3600
         else:
             missing.append(f"estimator {init}_{k}")
     ours_parts = {"new policy": policy_h, **{f"sweep {k}": v for k, v in sweep_h.items()},

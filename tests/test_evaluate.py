@@ -60,7 +60,7 @@ def test_retrain_cost_from_logs(tmp_path):
         k: {"wall_s": 360.0} for k in ("jumps", "gaps", "stairs")}}}))  # 0.1 h each
     (res / "estimators").mkdir()
     for k in ("jumps", "gaps", "stairs"):
-        (res / "estimators" / f"stand_{k}.json").write_text(json.dumps({"train_s": 720.0}))  # 0.2 h
+        (res / "estimators" / f"stand_{k}.json").write_text(json.dumps({"metrics": {"train_s": 720.0}}))  # 0.2 h
     doc = ev.retrain_cost(runs, res)
     rows = {r["method"]: r for r in doc["rows"]}
     assert rows["ours"]["hours"] == pytest.approx(1.0 + 3 * 0.1 + 3 * 0.2)

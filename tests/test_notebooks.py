@@ -1,0 +1,394 @@
+"""The result notebooks (experiments/notebooks/*.ipynb) run top to bottom on a small results tree.
+
+The tree is the committed pipeline-check set (experiments/results/pipeline_check/, real outputs of
+the CLIs with untrained stand-in policies) when it exists, else a synthetic tree written here with
+the package's own table and lookup functions. Each notebook is executed in a fresh kernel of this
+interpreter with BIPED_RESULTS pointing at the tree; the tests check that it drew its figures and
+that its printed tables hold the numbers in the files. A notebook pointed at an empty results root
+must fail with a message naming the command that makes its input.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import pathlib
+import re
+import sys
+
+import numpy as np
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+pytest.importorskip("ipykernel")
+from nbclient.exceptions import CellExecutionError  # noqa: E402
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+NB_DIR = REPO / "experiments" / "notebooks"
+PIPELINE_CHECK = REPO / "experiments" / "results" / "pipeline_check"
+KERNEL = "biped-switch-test"
+NOTEBOOKS = ("table1_single_policies", "table2_switching", "table3_retrain_cost",
+             "fig4b_switch_success", "fig5_trial", "training_curves")
+INPUTS = {  # the file each notebook cannot do without, and the command its error must name
+    "table1_single_policies": ("table1/table1.json", "python -m biped_switch.evaluate single"),
+    "table2_switching": ("table2/table2.json", "python -m biped_switch.evaluate multi"),
+    "table3_retrain_cost": ("table3/table3.json", "python -m biped_switch.evaluate retrain-cost"),
+    "fig4b_switch_success": ("lookup/lookup_stand.json", "python -m biped_switch.sweep --init stand"),
+    "fig5_trial": ("table2/fig5_trial0.npz", "python -m biped_switch.evaluate multi"),
+    "training_curves": ("training", "python -m biped_switch.train"),
+}
+
+sys.path.insert(0, str(NB_DIR))
+import _common as C  # noqa: E402
+
+
+# ----------------------------------------------------------------------------- synthetic tree
+def _episodes(rng, n, p_success, fail_p=(0.2, 0.5, 0.3)):
+    succ = rng.random(n) < p_success
+    return {"progress_frac": np.where(succ, 1.0, rng.uniform(0.05, 0.95, n)),
+            "success": succ.astype(float), "fell": (~succ).astype(float),
+            "fail_kind": np.where(succ, -1, rng.choice(3, n, p=fail_p))}
+
+
+def make_synthetic_results(root: pathlib.Path) -> pathlib.Path:
+    """A small results tree in the formats the CLIs write (tables via evaluate.episode_table, the
+    lookup table via sweep.lookup_table/save_lookup), labelled as a stand-in pipeline check."""
+    from biped_switch import evaluate, sweep, terrain
+    from biped_switch.policies import POLICY_NAMES
+
+    rng = np.random.default_rng(0)
+    curr = {"stage": 0, "stage_name": "terrain", "difficulty": 0.3, "guide_scale": 1.0,
+            "push_scale": 0.0}
+    # Table I
+    rows = []
+    for init in ("stand", "random"):
+        for k, policy in enumerate(("jumps", "gaps", "stairs")):
+            r = evaluate.episode_table(_episodes(rng, 20, 0.2 + 0.2 * k))
+            r.update(policy=policy, init=init, checkpoint=f"runs/{policy}_{init}/checkpoints/000000100000",
+                     train_step=100_000, curriculum=curr, wall_s=1.0)
+            rows.append(r)
+    (root / "table1").mkdir(parents=True)
+    (root / "table1" / "table1.json").write_text(json.dumps(
+        {"settings": {"policies": ["jumps", "gaps", "stairs"], "inits": ["stand", "random"],
+                      "trials": 20, "batch": 20, "horizon_s": 20.0, "seed": 0, "runs": "runs",
+                      "out": "x"}, "rows": rows}, default=str))
+    # Table II
+    src = ["runs/walk_stand/checkpoints/000000100000 (step 100,000, curriculum terrain)"]
+    srcs = src + [f"stand-in for {p}: {src[0]}" for p in ("jumps", "gaps", "stairs")]
+    rows = []
+    for i, m in enumerate(evaluate.MULTI_METHODS):
+        r = evaluate.episode_table(_episodes(rng, 30, 0.1 * (i + 1)))
+        r.update(method=m, init="random" if m == "estimator_no_overlap" else "stand", wall_s=2.0,
+                 switches_per_trial=3.5, policies=srcs)
+        rows.append(r)
+    (root / "table2").mkdir()
+    (root / "table2" / "table2.json").write_text(json.dumps(
+        {"settings": {"methods": list(evaluate.MULTI_METHODS), "trials": 30, "batch": 30,
+                      "horizon_s": 30.0, "seed": 0, "runs": "runs", "estimators": "models/estimators",
+                      "lookup": "x", "stand_in": "walk", "guide_scale": 0.5, "fig5_trial": 0,
+                      "out": "x"},
+         "rows": rows, "wall_s": 12.0, "device": "TFRT_CPU_0", "track_seed": 30_000}, default=str))
+    np.savez_compressed(root / "table2" / "fig5_trial0.npz", **_trace(30_000))
+    # lookup tables
+    tables = {}
+    for target in terrain.ARTIFACT_KINDS:
+        n = 600
+        others = [j for j in range(4) if POLICY_NAMES[j] != target]
+        source = rng.choice(others, n)
+        dist = rng.uniform(0, 0.9, n)
+        label = rng.random(n) < 0.2 + 0.6 * dist  # switching early works better
+        tables[target] = sweep.lookup_table(dist, label, source, target)
+    meta = {"sweeps": {t: {"points": 600, "wall_s": 5.0, "points_per_s": 120.0, "success_pct": 47.0,
+                           "data": f"runs/sweeps/stand/{t}.npz", "device": "TFRT_CPU_0"}
+                       for t in terrain.ARTIFACT_KINDS},
+            "policies": {t: dict(zip(POLICY_NAMES, srcs)) for t in terrain.ARTIFACT_KINDS}}
+    sweep.save_lookup(tables, "stand", root / "lookup", meta)
+    # estimators
+    (root / "estimators").mkdir()
+    for target in ("jumps", "gaps"):
+        stem = root / "estimators" / f"stand_{target}"
+        stem.with_suffix(".json").write_text(json.dumps(
+            {"target": target, "init": "stand", "data_file": f"runs/sweeps/stand/{target}.npz",
+             "metrics": {"train_points": 900, "val_points": 100, "val_acc": 0.71, "val_auc": 0.78,
+                         "best_val_acc": 0.73, "best_val_acc_epoch": 7, "epochs": 10,
+                         "train_s": 3.0, "device": "TFRT_CPU_0"}}))
+        with stem.with_name(stem.name + "_history.csv").open("w") as f:
+            f.write("epoch,train_loss,val_loss,val_acc\n")
+            for e in range(1, 11):
+                f.write(f"{e},{0.25 / e:.4f},{0.25 / e + 0.02:.4f},{0.5 + 0.02 * e:.3f}\n")
+    # training runs
+    for r_i, run in enumerate(("walk_stand", "gaps_stand")):
+        d = root / "training" / run
+        d.mkdir(parents=True)
+        with (d / "metrics.csv").open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["step", "stage", "difficulty", "guide_scale", "push_scale",
+                        "episode/sum_reward", "episode/length", "eval/reward_per_step", "wall_s"])
+            for i in range(1, 13):
+                ev = i % 4 == 0
+                w.writerow([i * 10_000, 0, min(1.0, 0.1 * (i // 4)), 1.0 - 0.05 * (i // 4), 0.0,
+                            (100.0 - 30 * r_i) * i, 500 + 10 * i,
+                            f"{(0.5 - 0.1 * r_i) * i:.2f}" if ev else "",
+                            f"{60.0 * i}" if ev else ""])
+    # Table III
+    (root / "table3").mkdir()
+    (root / "table3" / "table3.json").write_text(json.dumps(
+        {"rows": [{"method": "ours", "hours": 3.5, "parts": {"policy": 3.0, "sweeps": 0.3,
+                                                               "estimators": 0.2},
+                   "device": "TFRT_CPU_0", "paper_hours": 20.0},
+                  {"method": "dqn", "hours": None, "parts": {}, "device": None, "paper_hours": 25.0},
+                  {"method": "end_to_end", "hours": 6.0, "parts": {"policy": 6.0},
+                   "device": "TFRT_CPU_0", "paper_hours": 34.0}],
+         "notes": "synthetic test data"}))
+    return root
+
+
+def _trace(track_seed: int, T: int = 400) -> dict:
+    """A plausible per-step record of one estimator-switching trial on the seed's mixed track."""
+    from biped_switch import terrain
+
+    track = terrain.generate_track(track_seed, "mixed", 1.0)
+    rng = np.random.default_rng(1)
+    x = np.linspace(0.0, 0.9 * track.finish_x_m, T)
+    det_kind = np.full(T, -1, np.int32)
+    det_dist = np.full(T, np.inf, np.float32)
+    for k, a, _ in track.artifacts:
+        d = a - x
+        near = (d > 0) & (d <= 0.9)
+        det_kind[near] = terrain.ARTIFACT_KINDS.index(k)
+        det_dist[near] = d[near]
+    probs = np.clip(np.cumsum(rng.normal(0, 0.08, (T, 3)), 0) % 1.0, 0, 1).astype(np.float32)
+    active = np.zeros(T, np.int32)
+    switched = np.zeros(T, bool)
+    cur = 0
+    for i in range(T):
+        k = det_kind[i]
+        if k >= 0 and cur != k + 1 and (probs[i, k] >= 0.85 or det_dist[i] <= 0.01 or
+                                        (i + 1 < T and det_kind[i + 1] != k)):
+            cur, switched[i] = k + 1, True
+        active[i] = cur
+    phase = np.arange(T) * 2 * np.pi / 40
+    soles = np.zeros((T, 8, 3), np.float32)
+    soles[..., 0] = x[:, None]
+    soles[:, :4, 2] = 0.05 * np.clip(np.sin(phase), 0, None)[:, None]
+    soles[:, 4:, 2] = 0.05 * np.clip(-np.sin(phase), 0, None)[:, None]
+    body = np.stack([x, np.zeros(T), 0.9 + 0.02 * np.sin(2 * phase)], -1).astype(np.float32)
+    ended = np.zeros(T, np.float32)
+    ended[-20:] = 1.0
+    success = np.zeros(T, np.float32)
+    success[-21:] = 1.0
+    return {"time_s": (np.arange(T) * 0.02).astype(np.float32), "com_x_m": x.astype(np.float32),
+            "body_com": body, "soles": soles, "contact": (soles[..., 2] < 0.01).astype(np.float32),
+            "det_kind": det_kind, "det_dist_m": np.where(np.isfinite(det_dist), det_dist, 9.0),
+            "est_probs": probs, "com_ok": (np.sin(phase) ** 2 < 0.3),
+            "active": active, "switched": switched, "ended": ended,
+            "fell": np.zeros(T, np.float32), "success": success, "track_seed": np.int64(track_seed)}
+
+
+# ----------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    return make_synthetic_results(tmp_path_factory.mktemp("results"))
+
+
+@pytest.fixture(scope="module")
+def data_root(tmp_path_factory):
+    """The committed pipeline-check results when present, else the synthetic tree."""
+    if PIPELINE_CHECK.is_dir():
+        return PIPELINE_CHECK
+    return make_synthetic_results(tmp_path_factory.mktemp("results_nb"))
+
+
+@pytest.fixture(scope="module")
+def kernel_env(tmp_path_factory):
+    """A kernel spec running ipykernel on this interpreter, found through JUPYTER_PATH."""
+    base = tmp_path_factory.mktemp("jupyter")
+    spec = base / "kernels" / KERNEL
+    spec.mkdir(parents=True)
+    (spec / "kernel.json").write_text(json.dumps({
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+        "display_name": "biped_switch tests", "language": "python"}))
+    (base / "ipython").mkdir()
+    return {"JUPYTER_PATH": str(base), "IPYTHONDIR": str(base / "ipython"),
+            "MPLBACKEND": "module://matplotlib_inline.backend_inline"}
+
+
+def run_notebook(name: str, results: pathlib.Path, env: dict, monkeypatch):
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    monkeypatch.setenv("BIPED_RESULTS", str(results))
+    nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
+    client = nbclient.NotebookClient(nb, kernel_name=KERNEL, timeout=120, startup_timeout=90,
+                                     resources={"metadata": {"path": str(NB_DIR)}})
+    client.execute()
+    text, images = [], 0
+    for cell in nb.cells:
+        for out in cell.get("outputs", []):
+            if out.get("output_type") == "stream" and out.get("name") == "stdout":
+                text.append(out["text"])
+            images += "image/png" in out.get("data", {})
+    return "".join(text), images
+
+
+# ----------------------------------------------------------------------------- tests
+def test_helpers_on_synthetic_tree(synthetic, monkeypatch):
+    """_common reads the synthetic tree back: tables hold the numbers, stand-ins are flagged."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    monkeypatch.setenv("BIPED_RESULTS", str(synthetic))
+    assert C.results_root() == synthetic
+    doc = json.loads((synthetic / "table2" / "table2.json").read_text())
+    reasons = C.provenance_table2(doc, synthetic / "table2" / "table2.json")
+    assert any("stand-in" in r for r in reasons) and any("guide" in r for r in reasons)
+    txt = C.text_table(*C.table2_rows(doc))
+    for r in doc["rows"]:
+        line = next(ln for ln in txt.splitlines() if ln.startswith(r["method"] + " "))
+        assert f"{r['success_pct']:.1f}" in line and f"{r['fail_on']['gaps']:.1f}" in line
+    assert "not run" in next(ln for ln in txt.splitlines() if ln.startswith("end_to_end"))
+    look = json.loads((synthetic / "lookup" / "lookup_stand.json").read_text())
+    rows = C.lookup_rows(look)[1]
+    assert len(rows) == 9
+    for pair, _, _, best in rows:
+        v = look["best_m"][pair.replace(" ", "")]
+        assert best == ("-" if v is None else f"{v:.2f}")
+    rec = C.load_trial(synthetic / "table2" / "fig5_trial0.npz")
+    ev = C.trial_events(rec)[1]
+    assert sum(r[2] == "switch" for r in ev) == int(rec["switched"][:C.trial_length(rec)].sum()) > 0
+    assert C.trial_outcome(rec) == "success"
+    runs = C.find_training_runs(synthetic)
+    assert [d.name for d in runs] == ["gaps_stand", "walk_stand"]
+    assert C.training_rows(runs)[1][0][1] == "120,000"
+    from biped_switch import terrain
+
+    for fig in (C.plot_table1(json.loads((synthetic / "table1" / "table1.json").read_text())),
+                C.plot_table2(doc), C.plot_fig4b(look),
+                C.plot_fig5(rec, terrain.generate_track(int(rec["track_seed"]), "mixed", 1.0)),
+                C.plot_table3(json.loads((synthetic / "table3" / "table3.json").read_text())),
+                C.plot_training_run(runs[0]), C.plot_estimators(C.find_estimators(synthetic))):
+        assert fig.axes
+        plt.close(fig)
+
+
+def test_require_names_the_command(tmp_path, monkeypatch):
+    monkeypatch.setenv("BIPED_RESULTS", str(tmp_path))
+    with pytest.raises(C.MissingResult, match="python -m biped_switch.evaluate multi --out"):
+        C.load_json(tmp_path / "table2" / "table2.json", C.table2_command(tmp_path), "Table II")
+    cmd = C.table2_command(tmp_path, {"trials": 40, "stand_in": "walk", "guide_scale": 0.5,
+                                      "methods": ["random", "estimator"], "fig5_trial": 0})
+    assert cmd[:3] == ["-m", "biped_switch.evaluate", "multi"]
+    s = " ".join(cmd)
+    assert "--trials 40" in s and "--stand-in walk" in s and "--guide-scale 0.5" in s
+    assert "--methods random estimator" in s and "--fig5-trial 0" in s
+
+
+class _Parsed(Exception):
+    """Raised by a patched worker function: the CLI accepted its arguments."""
+
+
+def _stop(*_a, **_k):
+    raise _Parsed
+
+
+def test_recompute_commands_parse(tmp_path, monkeypatch):
+    """The commands the notebooks name (and run when RECOMPUTE = True) are accepted by the CLIs;
+    the work itself is patched out. (retrain-cost is not checked: it is not in evaluate yet.)"""
+    from biped_switch import estimator, evaluate, sweep, train
+
+    settings = {"methods": ["random", "estimator"], "trials": 8, "batch": 4, "horizon_s": 20.0,
+                "seed": 1, "runs": "runs", "estimators": "models/estimators", "stand_in": "walk",
+                "guide_scale": 0.5, "fig5_trial": 0, "policies": ["jumps"], "inits": ["stand"]}
+    monkeypatch.setattr(evaluate, "_main_multi", _stop)
+    monkeypatch.setattr(evaluate, "find_policy", lambda *a: None)  # single: nothing to evaluate
+    monkeypatch.setattr(sweep, "run_sweep", _stop)
+    monkeypatch.setattr(estimator, "load_data", _stop)
+    monkeypatch.setattr(train, "train", _stop)
+    cases = [(evaluate.main, C.table2_command(tmp_path)),
+             (evaluate.main, C.table2_command(tmp_path, settings)),
+             (evaluate.main, C.fig5_command(tmp_path, 3, settings)),
+             (evaluate.main, C.table1_command(tmp_path)),
+             (evaluate.main, C.table1_command(tmp_path, settings)),
+             (sweep.main, C.lookup_command(tmp_path, "random")),
+             (estimator.main, C.estimator_command(tmp_path) + ["--data", str(tmp_path / "none")]),
+             (train.main, C.train_command(tmp_path, "gaps", "random"))]
+    for main, argv in cases:
+        assert argv[0] == "-m" and main.__module__ == argv[1]
+        try:
+            rc = main(argv[2:])
+        except _Parsed:
+            rc = None
+        assert rc in (None, 1, 2), (argv, rc)  # 1: no policy found (single), 2: no sweep data
+
+
+def _input_or_skip(root: pathlib.Path, name: str) -> None:
+    rel_path = INPUTS[name][0]
+    if name == "table3_retrain_cost" and not (root / rel_path).exists():
+        pytest.skip(f"{root / rel_path} does not exist yet (python -m biped_switch.evaluate "
+                    "retrain-cost has not been run on this data)")
+
+
+@pytest.mark.parametrize("name", NOTEBOOKS)
+def test_notebook_runs(name, data_root, synthetic, kernel_env, monkeypatch):
+    # a result the pipeline check has not produced (Table I needs trained artifact policies) is
+    # drawn from the synthetic tree instead
+    if not (data_root / INPUTS[name][0]).exists():
+        data_root = synthetic
+    _input_or_skip(data_root, name)
+    text, images = run_notebook(name, data_root, kernel_env, monkeypatch)
+    assert "VERDICT" in text or name == "table3_retrain_cost"
+    if name == "table1_single_policies":
+        doc = json.loads((data_root / "table1" / "table1.json").read_text())
+        assert images >= 1
+        for r in doc["rows"]:
+            line = next(ln for ln in text.splitlines()
+                        if ln.split()[:3] == [r["policy"], r["init"], str(r["n"])])
+            assert f"{r['distance_pct']:.1f} (" in line and f"{r['success_pct']:.1f} (" in line
+    elif name == "table2_switching":
+        doc = json.loads((data_root / "table2" / "table2.json").read_text())
+        assert images >= 1
+        for r in doc["rows"]:
+            line = next(ln for ln in text.splitlines() if ln.startswith(r["method"] + " "))
+            assert f"{r['distance_pct']:.1f} (" in line and f"{r['success_pct']:.1f} (" in line
+        assert "82.4 / 71.4 / 16.7 / 2.4 / 9.4" in text  # the paper's estimator row beside ours
+    elif name == "table3_retrain_cost":
+        doc = json.loads((data_root / "table3" / "table3.json").read_text())
+        assert images >= 1
+        for r in doc["rows"]:
+            assert r["method"] in text
+            if r.get("hours") is not None:
+                assert f"{r['hours']:.2f}" in text
+    elif name == "fig4b_switch_success":
+        doc = json.loads((data_root / "lookup" / "lookup_stand.json").read_text())
+        assert images >= 1
+        for pair, v in doc["best_m"].items():
+            src, dst = pair.split("->")
+            if v is not None:
+                assert f"{src} -> {dst}" in text and f"{v:.2f}" in text
+    elif name == "fig5_trial":
+        rec = C.load_trial(data_root / "table2" / "fig5_trial0.npz")
+        n = C.trial_length(rec)
+        assert images >= 2
+        events = [ln.split() for ln in text.splitlines()
+                  if re.match(r"\d+ +[\d.]+ +(detect|switch) ", ln)]
+        assert sum(e[2] == "switch" for e in events) == int(rec["switched"][:n].sum())
+        assert f"track seed {int(rec['track_seed'])}" in text
+    elif name == "training_curves":
+        runs = C.find_training_runs(data_root)
+        ests = C.find_estimators(data_root)
+        assert runs and ests
+        assert images >= 2 + len(runs)
+        for d in runs:
+            assert d.name in text
+        for e, _, _ in ests:
+            assert e in text
+
+
+@pytest.mark.parametrize("name", NOTEBOOKS)
+def test_notebook_without_data_fails_naming_the_command(name, tmp_path, kernel_env, monkeypatch):
+    with pytest.raises(CellExecutionError) as e:
+        run_notebook(name, tmp_path, kernel_env, monkeypatch)
+    msg = str(e.value)
+    assert "MissingResult" in msg and INPUTS[name][1] in msg, msg[-2000:]
