@@ -360,6 +360,9 @@ def test_notebook_runs(name, data_root, synthetic, kernel_env, monkeypatch):
             assert r["method"] in text
             if r.get("hours") is not None:
                 assert f"{r['hours']:.2f}" in text
+            for part, v in (r.get("parts") or {}).items():  # the parts table, one line each
+                assert any(ln.split()[:1] == [r["method"]] and f" {part} " in ln
+                           and ln.rstrip().endswith(C._hours(v)) for ln in text.splitlines()), part
     elif name == "fig4b_switch_success":
         doc = json.loads((data_root / "lookup" / "lookup_stand.json").read_text())
         assert images >= 1

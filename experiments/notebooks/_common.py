@@ -372,17 +372,35 @@ def table2_rows(doc: dict, with_paper_only: bool = True):
     return headers, rows
 
 
+def _hours(v) -> str:
+    if v is None:
+        return "n/a"
+    if v >= 0.1:
+        return f"{v:.2f}"
+    return f"{v:.2f} ({60 * v:.1f} min)" if v >= 1 / 60 else f"{v:.4f} ({3600 * v:.1f} s)"
+
+
 def table3_rows(doc: dict):
-    headers = ["method", "our hours", "paper hours", "parts (hours)", "device"]
+    """Per method: total hours (n/a unless every part was measured), the measured parts' sum."""
+    headers = ["method", "our hours", "measured parts (sum)", "parts not measured", "paper hours",
+               "device"]
     rows = []
     for r in doc["rows"]:
         paper = r.get("paper_hours", PAPER_TABLE3.get(r["method"]))
         parts = r.get("parts") or {}
-        rows.append([r["method"], "n/a" if r.get("hours") is None else f"{r['hours']:.2f}",
-                     "-" if paper is None else f"{paper:g}",
-                     ", ".join(f"{k} {'n/a' if v is None else f'{v:.2f}'}" for k, v in parts.items())
-                     or "-", r.get("device") or "not recorded"])
+        known = [v for v in parts.values() if v is not None]
+        rows.append([r["method"], _hours(r.get("hours")),
+                     (f"{len(known)}/{len(parts)}" + (f" ({_hours(sum(known))})" if known else ""))
+                     if parts else "-",
+                     ", ".join(k for k, v in parts.items() if v is None) or "-",
+                     "-" if paper is None else f"{paper:g}", r.get("device") or "not recorded"])
     return headers, rows
+
+
+def table3_parts_rows(doc: dict):
+    headers = ["method", "part", "hours"]
+    return headers, [[r["method"], k, _hours(v)] for r in doc["rows"]
+                     for k, v in (r.get("parts") or {}).items()]
 
 
 # ------------------------------------------------------------------------------- figures
@@ -506,19 +524,24 @@ def plot_table3(doc: dict, title: str = ""):
     for i, r in enumerate(rows):
         bottom = 0.0
         parts = r.get("parts") or {}
-        if parts and all(v is not None for v in parts.values()):  # stacked parts
-            for k, v in parts.items():
-                ax.bar(x[i] - w / 2, v, w, bottom=bottom, color=cmap(names.index(k) % 20),
-                       label=None if k in labelled else k)
-                labelled.add(k)
-                bottom += v
-        elif r.get("hours") is not None:
+        for k, v in parts.items():  # the measured parts, stacked
+            if v is None:
+                continue
+            ax.bar(x[i] - w / 2, v, w, bottom=bottom, color=cmap(names.index(k) % 20),
+                   label=None if k in labelled else k)
+            labelled.add(k)
+            bottom += v
+        if not parts and r.get("hours") is not None:
             ax.bar(x[i] - w / 2, r["hours"], w, color="tab:blue")
-        else:
-            ax.text(x[i] - w / 2, 0.5, "n/a", ha="center", va="bottom", fontsize=8)
+            bottom = r["hours"]
+        missing = [k for k, v in parts.items() if v is None]
         if r.get("hours") is not None:
-            ax.text(x[i] - w / 2, r["hours"], f"{r['hours']:.1f}", ha="center", va="bottom",
-                    fontsize=8)
+            note = f"{r['hours']:.1f}"
+        elif missing:
+            note = f"incomplete: {len(missing)} of {len(parts)} parts\nnot measured"
+        else:
+            note = "n/a"
+        ax.text(x[i] - w / 2, bottom, note, ha="center", va="bottom", fontsize=7)
         paper = r.get("paper_hours", PAPER_TABLE3.get(r["method"]))
         if paper is not None:
             ax.bar(x[i] + w / 2, paper, w, color="0.75", hatch="//", edgecolor="0.4",
