@@ -631,6 +631,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
     `reset_pool` of one state per bank track) may be passed in (tests)."""
     from biped_switch import train as train_lib
 
+    t_session = time.perf_counter()
     run_dir = pathlib.Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
@@ -663,6 +664,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
     per_call = cfg.log_every * cfg.num_envs
     calls_per_chunk = max(1, math.ceil(cfg.chunk_env_steps / per_call))
     progress, chunks, last = {}, 0, {}
+    setup_s = time.perf_counter() - t_session  # env, policies, pool: counted in the first chunk
     while step < cfg.total_env_steps and (max_chunks is None or chunks < max_chunks):
         t_chunk = time.perf_counter()
         if own_pool and cfg.init == "random" and chunks > 0:  # new joint draws (stand: no need)
@@ -677,18 +679,21 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
             step += per_call
             sps = per_call / max(dt, 1e-9)
             left = max(cfg.total_env_steps - step, 0) / sps
+            elapsed = wall_s + time.perf_counter() - t_chunk + (setup_s if chunks == 0 else 0.0)
             print_fn(f"[dqn/{cfg.init}] step {step:,}/{cfg.total_env_steps:,}  episodes "
                      f"{last['episodes']}  return {last['episode_return']:.1f} (env "
                      f"{last['episode_env_return']:.1f})  success {last['episode_success']:.2f}  "
                      f"correct {last['correct_choice_frac']:.2f}  loss {last['loss']:.4f}  "
                      f"q {last['q_mean']:.2f}  eps {last['epsilon']:.3f}  {sps:,.0f} steps/s  "
-                     f"elapsed {(wall_s + time.perf_counter() - t_chunk) / 60:.1f} min  "
+                     f"elapsed {elapsed / 60:.1f} min  "
                      f"left ~{left / 60:.1f} min")
-            logger.log(step, {**last, "steps_per_s": sps})
+            logger.log(step, {k: v for k, v in {**last, "steps_per_s": sps}.items()
+                              if not (isinstance(v, float) and math.isnan(v))})
         chunk_s = time.perf_counter() - t_chunk
-        wall_s += chunk_s
+        wall_s += chunk_s + (setup_s if chunks == 0 else 0.0)
         n_updates, norm_ready = int(ts.n_updates), bool(ts.norm_ready)
-        progress = {"step": step, "wall_s": wall_s, "chunk_s": chunk_s, "epsilon": last["epsilon"],
+        progress = {"step": step, "wall_s": wall_s, "chunk_s": chunk_s,
+                    "session_setup_s": setup_s if chunks == 0 else 0.0, "epsilon": last["epsilon"],
                     "n_updates": n_updates, "norm_ready": norm_ready,
                     "env_steps_per_s": per_call * calls_per_chunk / chunk_s, "last": last,
                     "hm_size": fns.hm_size, "q_input_size": fns.in_size, "init": cfg.init,

@@ -2,6 +2,7 @@
 collection step, rollout and the resumable trainer on a cheap scripted env, and one jitted
 collection + update call on the real MJX env (the only expensive compile of this file)."""
 
+import functools
 import json
 import types
 
@@ -125,8 +126,9 @@ def test_epsilon_schedule_and_greedy():
 def _rows(ids, obs_size):
     ids = np.asarray(ids, np.float32)
     obs = np.tile(ids[:, None], (1, obs_size)) + np.arange(obs_size)[None]  # small ints: exact in f16
-    return {"obs": jnp.asarray(obs), "next_obs": jnp.asarray(obs + 1000), "action": jnp.asarray(ids % 4, jnp.int32),
-            "reward": jnp.asarray(ids * 0.5), "done": jnp.asarray(ids % 2)}
+    return {"obs": jnp.asarray(obs), "next_obs": jnp.asarray(obs + 1000),
+            "action": jnp.asarray(ids % 4, jnp.int32), "reward": jnp.asarray(ids * 0.5),
+            "done": jnp.asarray(ids % 2)}
 
 
 def test_buffer_wraps_and_overwrites_the_oldest():
@@ -233,7 +235,11 @@ def test_dqn_update_learns_synthetic_transitions():
 
 # ----------------------------------------------------------------------- collection on the fake env
 COLLECT_ENV = FakeEnv(end_step=5)
-COLLECT_POOL = dqn.reset_pool(COLLECT_ENV, jax.random.PRNGKey(7), COLLECT_ENV.bank.size)
+
+
+@functools.cache
+def _collect_pool():
+    return dqn.reset_pool(COLLECT_ENV, jax.random.PRNGKey(7), COLLECT_ENV.bank.size)
 
 
 @jax.jit
@@ -242,12 +248,12 @@ def _collect(col, key, oracle, max_steps):
     `oracle` is 1, else always walk. One compile serves both collection tests."""
     suite = index_suite()
     q = lambda prm, x: prm * oracle_q(None, x) + (1.0 - prm) * walk_q(None, x)  # noqa: E731
-    return dqn.collect_step(COLLECT_ENV, suite.apply, suite.params, q, oracle, col, COLLECT_POOL,
+    return dqn.collect_step(COLLECT_ENV, suite.apply, suite.params, q, oracle, col, _collect_pool(),
                             key, 0.0, 2.0, 0.5, max_steps)
 
 
 def _collector(max_steps, oracle):
-    col = dqn.collector_init(COLLECT_POOL, 4)
+    col = dqn.collector_init(_collect_pool(), 4)
     return col, lambda c, key: _collect(c, key, jnp.float32(oracle), jnp.int32(max_steps))
 
 
