@@ -310,14 +310,17 @@ class BipedEnv(Env):
         c8 = sole_contacts(data, self.biped.sole_geoms)
         return jnp.concatenate([c8, (jnp.sum(c8) == 0).astype(jnp.float32)[None]])
 
+    def _pose(self, qpos):
+        """Pelvis origin, rotation, CoM [m] and ZYX Euler angles [rad] from the free joint."""
+        pos, xmat = qpos[0:3], _quat_to_mat(qpos[3:7])
+        return pos, xmat, pos + xmat @ self._pelvis_ipos, _euler(xmat)
+
     def _features(self, data, boxes):
         """Pelvis CoM position, velocities (world frame), Euler angles and height above terrain.
 
         Computed from qpos/qvel of the free joint (the pelvis is its body), not from data.xipos:
         mjx.step evaluates positions before it integrates, so xipos/xmat lag qpos by a substep."""
-        pos, xmat = data.qpos[0:3], _quat_to_mat(data.qpos[3:7])
-        com = pos + xmat @ self._pelvis_ipos
-        yaw, pitch, roll = _euler(xmat)
+        pos, xmat, com, (yaw, pitch, roll) = self._pose(data.qpos)
         ang_vel = xmat @ data.qvel[3:6]  # free joint: angular velocity is in the body frame
         lin_vel = data.qvel[0:3] + jnp.cross(ang_vel, com - pos)
         depth = self.cfg.heightmap.depth_m
@@ -347,9 +350,9 @@ class BipedEnv(Env):
         CoM, the heading, the whole-body CoM and the sole centres (world frame; these two come
         from the last substep's kinematics, 5 ms old), and the 8 sole contacts."""
         d = state.pipeline_state
-        f = self._features(d, state.info["boxes"])
-        return {"detect": self.detect(state.info, f["com"][0]), "com_x_m": f["com"][0],
-                "yaw": f["yaw"], "body_com": d.subtree_com[self.biped.pelvis_body],
+        _, _, com, (yaw, _, _) = self._pose(d.qpos)  # no velocities or terrain lookup needed
+        return {"detect": self.detect(state.info, com[0]), "com_x_m": com[0],
+                "yaw": yaw, "body_com": d.subtree_com[self.biped.pelvis_body],
                 "soles": d.geom_xpos[self.biped.sole_geoms.reshape(-1)],
                 "contact": state.obs[STATE_SLICES["contact"]][:8],
                 "contact_prev": state.obs[STATE_SLICES["contact_prev"]][:8]}

@@ -362,21 +362,29 @@ def main(argv=None) -> int:
               f"models/policies/); train with `make train-all`", file=sys.stderr)
     if not rows:
         return 1
-    md = table1_markdown(rows)
-    print(md)
-    out = pathlib.Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table1.md").write_text(md + "\n")
-    with (out / "table1.csv").open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["policy", "init", "trials", "distance_pct", "distance_lo", "distance_hi",
-                    "success_pct", "success_lo", "success_hi", "checkpoint", "train_step"])
-        for r in rows:
-            w.writerow([r["policy"], r["init"], r["n"], r["distance_pct"], *r["distance_ci"],
-                        r["success_pct"], *r["success_ci"], r["checkpoint"], r["train_step"]])
+    out = _write_table(a.out, "table1", table1_markdown(rows),
+                       ["policy", "init", "trials", "checkpoint", "train_step"],
+                       [[r["policy"], r["init"], r["n"], r["checkpoint"], r["train_step"]] for r in rows],
+                       rows)
     (out / "table1.json").write_text(json.dumps({"settings": vars(a), "rows": rows}, indent=2,
                                                 default=str))
     return 0
+
+
+def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list) -> pathlib.Path:
+    """Prints a table's Markdown and saves it with a CSV: `head`/`cols` per row, followed by the
+    distance and success columns with their 95% intervals that every episode table has."""
+    print(md)
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.md").write_text(md + "\n")
+    with (out / f"{name}.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(head + ["distance_pct", "distance_lo", "distance_hi", "success_pct",
+                           "success_lo", "success_hi"])
+        for c, r in zip(cols, rows):
+            w.writerow(c + [r["distance_pct"], *r["distance_ci"], r["success_pct"], *r["success_ci"]])
+    return out
 
 
 PAPER_TABLE3_H = {"ours": 20.0, "dqn": 25.0, "end_to_end": 34.0}  # hours, CPU (Tidd et al.)
@@ -469,21 +477,12 @@ def _main_multi(a, p) -> int:
     rows, setups = evaluate_multi(a.methods, a.trials, batch, a.horizon_s, a.seed, a.runs,
                                   a.stand_in, a.estimators, a.lookup,
                                   print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale)
-    md = table2_markdown(rows)
-    print(md)
-    out = pathlib.Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table2.md").write_text(md + "\n")
-    with (out / "table2.csv").open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["method", "init", "trials", "distance_pct", "distance_lo", "distance_hi",
-                    "success_pct", "success_lo", "success_hi", "gap_fail_pct", "jump_fail_pct",
-                    "stair_fail_pct", "switches_per_trial", "wall_s"])
-        for r in rows:
-            w.writerow([r["method"], r["init"], r["n"], r["distance_pct"], *r["distance_ci"],
-                        r["success_pct"], *r["success_ci"], r["fail_on"]["gaps"],
-                        r["fail_on"]["jumps"], r["fail_on"]["stairs"], r["switches_per_trial"],
-                        r["wall_s"]])
+    out = _write_table(a.out, "table2", table2_markdown(rows),
+                       ["method", "init", "trials", "gap_fail_pct", "jump_fail_pct",
+                        "stair_fail_pct", "switches_per_trial", "wall_s"],
+                       [[r["method"], r["init"], r["n"], r["fail_on"]["gaps"], r["fail_on"]["jumps"],
+                         r["fail_on"]["stairs"], r["switches_per_trial"], r["wall_s"]] for r in rows],
+                       rows)
     wall = time.perf_counter() - t0
     (out / "table2.json").write_text(json.dumps(
         {"settings": vars(a), "rows": rows, "wall_s": wall, "device": str(jax.devices()[0]),

@@ -125,6 +125,9 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
         fell = live & (nxt.metrics["fell"] > 0.5)
         label = live & switched & ((count >= steps_past) | (nxt.metrics["success"] > 0.5)) & ~fell
         ended = c["ended"] | fell | label | (live & (nxt.done > 0.5))
+        # Ended episodes are frozen. Not needed for the record (it reads only live steps), but
+        # it keeps the compiled step bit-identical to the env's own: the window test compares
+        # observations to 1e-4 after ~200 chaotic contact steps, and a regrouped program drifts.
         keep = ~live
         state = jax.tree.map(
             lambda o, n_: jnp.where(keep.reshape((-1,) + (1,) * (n_.ndim - 1)), o, n_), state, nxt)

@@ -192,8 +192,9 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
         action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
         nxt = jax.vmap(env.step)(state, action)
         live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
-        state = jax.tree.map(lambda n, o: jnp.where(live.reshape((-1,) + (1,) * (n.ndim - 1)), n, o),
-                             nxt, state)
+        # An ended episode keeps stepping (its metrics are frozen below and its decisions unused):
+        # cheaper than masking the whole physics state every step.
+        state = nxt
         metrics = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt.metrics, metrics)
         length = length + live
         ended = jnp.maximum(ended, nxt.done * live)
