@@ -1,8 +1,9 @@
 """`make demo`: the switching pipeline end to end on a CPU, at a small size.
 
 With the committed policies (models/policies/), switch estimators (models/estimators/) and lookup
-table (experiments/results/lookup/), runs every switching method on the same few dozen `mixed`
-7-artifact tracks, prints Table II, draws the paper's Fig. 5 for one trial of the estimator
+table (experiments/results/lookup/), runs every switching method, and the DQN and end-to-end
+baselines where they are trained (models/baselines/dqn_stand, models/policies/mixed_stand), on the
+same few dozen `mixed` 7-artifact tracks, prints Table II, draws the paper's Fig. 5 for one trial of the estimator
 method and renders that trial to a GIF (offscreen MuJoCo; skipped with a message when no OpenGL
 backend is available). Everything goes to experiments/results/demo/.
 
@@ -22,26 +23,12 @@ import time
 import jax
 import numpy as np
 
-from biped_switch import evaluate, terrain
-from biped_switch import policies as pol
+from biped_switch import render
 
+render._gl_default()  # the GL backend is fixed when mujoco is first imported: before evaluate's
 
-def _available_methods(runs: str, est_dir: str, lookup_dir: str) -> tuple[list, list]:
-    methods, skipped = [], []
-    for m in evaluate.MULTI_METHODS:
-        init = "random" if m == "estimator_no_overlap" else "stand"
-        if evaluate.find_policy("walk", init, pathlib.Path(runs)) is None:
-            skipped.append(f"{m}: no {init}-init walk policy")
-            continue
-        if m.startswith("estimator") and not all(
-                (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
-            skipped.append(f"{m}: no {init}-init estimators in {est_dir}")
-            continue
-        if m == "lookup" and not (pathlib.Path(lookup_dir) / "lookup_stand.json").exists():
-            skipped.append(f"{m}: no lookup table in {lookup_dir}")
-            continue
-        methods.append(m)
-    return methods, skipped
+from biped_switch import evaluate, terrain  # noqa: E402
+from biped_switch import policies as pol  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -52,6 +39,7 @@ def main(argv=None) -> int:
     p.add_argument("--runs", default="runs", help="trained policies (then models/policies/)")
     p.add_argument("--estimators", default="models/estimators")
     p.add_argument("--lookup", default="experiments/results/lookup")
+    p.add_argument("--dqn", default=None, help="DQN run directory (default: evaluate.DQN_DIRS)")
     p.add_argument("--pipeline-check", default="models/pipeline_check",
                    help="used when no trained walk policy is found: the committed pipeline-check "
                         "suite (a short CPU walk run and estimators from stand-in sweeps)")
@@ -65,20 +53,25 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     out = pathlib.Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    if evaluate.find_policy("walk", "stand", pathlib.Path(a.runs)) is None:
+    untrained = [n for n in pol.POLICY_NAMES
+                 if evaluate.find_policy(n, "stand", pathlib.Path(a.runs)) is None]
+    if untrained:  # a partial suite would be mostly stand-ins: use the committed check instead
+        print(f"demo: no trained stand-init {', '.join(untrained)} policy in {a.runs}/ or "
+              f"models/policies/")
         a.runs = a.pipeline_check
         a.estimators = str(pathlib.Path(a.pipeline_check) / "estimators")
         a.lookup = "experiments/results/pipeline_check/lookup"
-        print(f"demo: no trained policies in runs/ or models/policies/: using the pipeline-check "
-              f"suite in {a.pipeline_check}/")
-    methods, skipped = _available_methods(a.runs, a.estimators, a.lookup)
+        a.dqn = str(pathlib.Path(a.pipeline_check) / "dqn_stand")
+        print(f"demo: using the pipeline-check suite in {a.pipeline_check}/")
+    methods, skipped = evaluate.available_methods(evaluate.MULTI_METHODS, a.runs, a.estimators,
+                                                  a.lookup, a.dqn, stand_in=a.stand_in)
     if not methods:
         print("demo: nothing to run: " + "; ".join(skipped), file=sys.stderr)
         return 1
     found = {n: evaluate.find_policy(n, "stand", pathlib.Path(a.runs)) for n in pol.POLICY_NAMES}
     stand_ins = [n for n, c in found.items() if c is None]
     guide = a.guide_scale if a.guide_scale is not None else (1.0 if stand_ins else 0.0)
-    print(f"demo: {len(methods)} switching methods x {a.trials} mixed 7-artifact tracks "
+    print(f"demo: {len(methods)} methods x {a.trials} mixed 7-artifact tracks "
           f"({a.horizon_s:g} s limit), then Fig. 5 and a GIF of one trial. Takes about 5-10 minutes "
           f"on 2 CPU cores (mostly compiling the MJX rollouts), seconds on a GPU.", flush=True)
     for s in skipped:
@@ -89,7 +82,7 @@ def main(argv=None) -> int:
               f"{guide:g}. Train the policies (make train-all) for real numbers.", flush=True)
     rows, setups = evaluate.evaluate_multi(
         methods, a.trials, a.trials, a.horizon_s, a.seed, a.runs, a.stand_in, a.estimators,
-        a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=guide)
+        a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=guide, dqn_dir=a.dqn)
     md = evaluate.table2_markdown(rows)
     print(md)
     (out / "table2_demo.md").write_text(md + "\n")
@@ -117,9 +110,6 @@ def main(argv=None) -> int:
 
 def _video(rec: dict, setup, path: pathlib.Path) -> str | None:
     """GIF of the traced trial, or None (with the reason printed) when rendering is unavailable."""
-    from biped_switch import render
-
-    render._gl_default()
     live = int(np.sum(rec["ended"] < 0.5))
     boxes = np.asarray(setup.env.track_arrays(0, 1.0)[0])
     try:

@@ -567,19 +567,20 @@ def load_dqn(run_dir):
 
 # ----------------------------------------------------------------------- evaluation
 def dqn_rollout(env, suite_apply, suite_params, q_apply, q_params, rng: jax.Array, n_envs: int,
-                horizon: int, track_ids=None, chunk: int = 50) -> dict:
+                horizon: int, track_ids=None, chunk: int = 50, guide_scale=0.0) -> dict:
     """Episodes on the env's tracks with the greedy Q choice of policy at every step.
 
     Same protocol and keys as `switching.multi_rollout` (episodes frozen at their end, chunks of
     `chunk` steps under a while loop that stops once all have ended): every final env metric,
     `length` (live steps), `done` and `n_switches` (changes of the chosen policy, counted from
-    walk, as multi_rollout's episodes start with walk active)."""
+    walk, as multi_rollout's episodes start with walk active). The same rng gives the same start
+    states as multi_rollout; `guide_scale` > 0 turns the scripted guides on (pipeline checks)."""
     p = policy_obs_size(env)
     k_reset, k_run = jax.random.split(rng)
     keys = jax.random.split(k_reset, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
-    state = jax.vmap(lambda k, i: env.reset(k, track_id=i))(keys, track_ids)
+    state = jax.vmap(lambda k, i: env.reset(k, track_id=i, guide_scale=guide_scale))(keys, track_ids)
     zi = jnp.zeros(n_envs, jnp.int32)
     carry = (state, zi, zi, jnp.zeros(n_envs), jnp.zeros(n_envs), state.metrics,
              jnp.zeros((), jnp.int32))

@@ -138,8 +138,59 @@ PAPER_TABLE2 = {  # % total dist., % success, % gap / jump / stair fail (Tidd et
     "dqn": (83.2, 72.4, 15.1, 3.7, 8.8),
     "end_to_end": (92.7, 90.2, 4.2, 1.8, 3.7),
 }
-MULTI_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
-                 "estimator_no_overlap")
+SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
+                  "estimator_no_overlap")
+BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain (issue 5)
+MULTI_METHODS = SWITCH_METHODS + BASELINES
+DQN_DIRS = ("runs/dqn_stand", "models/baselines/dqn_stand")  # searched in order
+
+
+def find_dqn(dqn_dir: str | None = None) -> pathlib.Path | None:
+    """The DQN run directory with a checkpoint: `dqn_dir`, else the first of DQN_DIRS."""
+    for d in [dqn_dir] if dqn_dir else DQN_DIRS:
+        if train_lib.latest_checkpoint(pathlib.Path(d)) is not None:
+            return pathlib.Path(d)
+    return None
+
+
+def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
+                      stand_in: str | None = None) -> tuple[list, list]:
+    """(methods whose trained parts exist, ["method: what is missing", ...])."""
+    from biped_switch import terrain
+
+    runs, ok, skipped = pathlib.Path(runs), [], []
+    for m in methods:
+        init = "random" if m == "estimator_no_overlap" else "stand"
+        first = stand_in or "walk"
+        if m == "end_to_end":
+            if find_policy("mixed", "stand", runs) is None:
+                skipped.append(f"{m}: no end-to-end policy (python -m biped_switch.train --policy mixed)")
+                continue
+        elif find_policy("walk", init, runs) is None and find_policy(first, init, runs) is None:
+            skipped.append(f"{m}: no {init}-init walk policy under {runs}/ or models/policies/")
+            continue
+        if m.startswith("estimator") and not all(
+                (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
+            skipped.append(f"{m}: no {init}-init estimators in {est_dir} (make train-estimators)")
+            continue
+        if m == "lookup" and not (pathlib.Path(lookup_dir) / "lookup_stand.json").exists():
+            skipped.append(f"{m}: no lookup table in {lookup_dir} (python -m biped_switch.sweep)")
+            continue
+        if m == "dqn" and find_dqn(dqn_dir) is None:
+            skipped.append(f"{m}: no DQN checkpoint in {dqn_dir or ' or '.join(DQN_DIRS)} "
+                           f"(make train-dqn)")
+            continue
+        ok.append(m)
+    return ok, skipped
+
+
+def _run_batches(run, trials: int, batch: int, seed: int) -> dict:
+    """`run(rng, track_ids)` over trials in batches; trial i is track i, rng = seed + batch start."""
+    results = []
+    for start in range(0, trials, batch):
+        ids = jax.numpy.arange(start, start + batch, dtype=jax.numpy.int32) % trials
+        results.append(jax.device_get(run(jax.random.PRNGKey(seed + start), ids)))
+    return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
 
 
 def _estimators(init: str, model_dir: str):
@@ -183,33 +234,82 @@ class MultiSetup:
         from biped_switch import switching as sw
 
         rules = sw.make_rules(method, lookup_m=self.lookup_m)
-        results = []
-        for start in range(0, trials, self.batch):
-            ids = jax.numpy.arange(start, start + self.batch, dtype=jax.numpy.int32) % trials
-            results.append(jax.device_get(self.run(self.suite.params, self.est_params, rules,
-                                                   jax.random.PRNGKey(seed + start), ids)))
-        return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
+        return _run_batches(lambda rng, ids: self.run(self.suite.params, self.est_params, rules,
+                                                      rng, ids), trials, self.batch, seed)
+
+
+class BaselineSetup:
+    """The DQN selector or the end-to-end policy on MultiSetup's tracks, seeds and horizon.
+
+    Both run `dqn.dqn_rollout` (same resets, chunks, early stop and frozen metrics as
+    `switching.multi_rollout`); the end-to-end policy is a one-policy suite whose "selector"
+    always picks it."""
+
+    def __init__(self, method: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
+                 dqn_dir=None, guide_scale: float = 0.0):
+        from biped_switch import dqn as dqn_lib
+        from biped_switch import policies as pol
+        from biped_switch.rollout import over_devices
+
+        if method not in BASELINES:
+            raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
+        if method == "dqn":
+            run_dir = find_dqn(dqn_dir)
+            if run_dir is None:
+                raise FileNotFoundError(f"no DQN checkpoint in {dqn_dir or DQN_DIRS} (make train-dqn)")
+            self.env = env_lib.make_env("mixed", "stand", detector_one_hot=True, n_tracks=trials,
+                                        seed=MULTI_TRACK_SEED)
+            self.suite = pol.load_suite("stand", dqn_lib._suite_env(self.env), runs, stand_in=stand_in)
+            q_apply, self.q_params = dqn_lib.load_dqn(run_dir)
+            self.sources = self.suite.sources + (
+                f"selector: {train_lib.latest_checkpoint(run_dir)}",)
+        else:
+            self.env = env_lib.make_env("mixed", "stand", n_tracks=trials, seed=MULTI_TRACK_SEED)
+            self.suite = pol.load_suite("stand", self.env, runs, names=("mixed",))
+            self.q_params = jax.numpy.zeros(())
+
+            def q_apply(_, x):  # the only policy of the suite, always
+                return jax.numpy.zeros(x.shape[:-1] + (1,))
+            self.sources = self.suite.sources
+        env, apply, horizon = self.env, self.suite.apply, int(round(horizon_s / self.env.dt))
+
+        def one(suite_params, q_params, rng, ids):
+            return dqn_lib.dqn_rollout(env, apply, suite_params, q_apply, q_params, rng,
+                                       ids.shape[0], horizon, track_ids=ids, guide_scale=guide_scale)
+
+        self.run = over_devices(one, n_shared=2)
+        self.batch = batch
+
+    def evaluate(self, trials: int, seed: int) -> dict:
+        return _run_batches(lambda rng, ids: self.run(self.suite.params, self.q_params, rng, ids),
+                            trials, self.batch, seed)
 
 
 def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
                    stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
-                   print_fn=print, guide_scale: float = 0.0) -> tuple[list, dict]:
-    """Table II rows (dicts) for `methods`, and the MultiSetup per init mode used."""
+                   print_fn=print, guide_scale: float = 0.0, dqn_dir=None) -> tuple[list, dict]:
+    """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
+    and per baseline ("dqn", "end_to_end"). `wall_s` of a row includes its setup and compiles."""
     setups, rows = {}, []
     for method in methods:
-        init = "random" if method == "estimator_no_overlap" else "stand"
-        rule = "estimator" if method == "estimator_no_overlap" else method
-        if init not in setups:
-            need_est = any(m.startswith("estimator") for m in methods)
-            setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
-                                      lookup_dir, need_est, "lookup" in methods and init == "stand",
-                                      guide_scale)
         t0 = time.perf_counter()
-        merged = setups[init].evaluate(rule, trials, seed)
+        init = "random" if method == "estimator_no_overlap" else "stand"
+        if method in BASELINES:
+            setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
+                                           guide_scale)
+            merged, sources = setups[method].evaluate(trials, seed), setups[method].sources
+        else:
+            if init not in setups:
+                need_est = any(m.startswith("estimator") for m in methods)
+                setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
+                                          lookup_dir, need_est,
+                                          "lookup" in methods and init == "stand", guide_scale)
+            rule = "estimator" if method == "estimator_no_overlap" else method
+            merged, sources = setups[init].evaluate(rule, trials, seed), setups[init].suite.sources
         row = episode_table(merged)
         row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
                    switches_per_trial=float(np.mean(merged["n_switches"])),
-                   policies=list(setups[init].suite.sources))
+                   policies=list(sources))
         rows.append(row)
         print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
                  f"  ({row['wall_s']:.0f} s)")
@@ -319,6 +419,8 @@ def main(argv=None) -> int:
     m.add_argument("--runs", default="runs")
     m.add_argument("--estimators", default="models/estimators")
     m.add_argument("--lookup", default="experiments/results/lookup")
+    m.add_argument("--dqn", default=None,
+                   help=f"DQN run directory (default: the first of {', '.join(DQN_DIRS)} with a checkpoint)")
     m.add_argument("--stand-in", default=None, choices=train_lib.POLICIES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
     m.add_argument("--guide-scale", type=float, default=0.0,
@@ -472,11 +574,19 @@ def _main_multi(a, p) -> int:
         p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
     batch = min(a.batch, a.trials)
     t0 = time.perf_counter()
+    a.methods, skipped = available_methods(a.methods, a.runs, a.estimators, a.lookup, a.dqn,
+                                           a.stand_in)
+    for s in skipped:
+        print(f"skipped {s}", file=sys.stderr)
+    if not a.methods:
+        print("evaluate multi: no method has its trained parts", file=sys.stderr)
+        return 1
     print(f"Table II: {len(a.methods)} methods x {a.trials} trials of mixed tracks (batch {batch}, "
           f"{jax.local_device_count()} {jax.devices()[0].platform} device(s))", flush=True)
     rows, setups = evaluate_multi(a.methods, a.trials, batch, a.horizon_s, a.seed, a.runs,
                                   a.stand_in, a.estimators, a.lookup,
-                                  print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale)
+                                  print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale,
+                                  dqn_dir=a.dqn)
     out = _write_table(a.out, "table2", table2_markdown(rows),
                        ["method", "init", "trials", "gap_fail_pct", "jump_fail_pct",
                         "stair_fail_pct", "switches_per_trial", "wall_s"],
@@ -485,7 +595,8 @@ def _main_multi(a, p) -> int:
                        rows)
     wall = time.perf_counter() - t0
     (out / "table2.json").write_text(json.dumps(
-        {"settings": vars(a), "rows": rows, "wall_s": wall, "device": str(jax.devices()[0]),
+        {"settings": vars(a), "rows": rows, "skipped": skipped, "wall_s": wall,
+         "device": str(jax.devices()[0]),
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
     if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
         s = setups["stand"]

@@ -67,8 +67,9 @@ def brax_apply(train_cfg, env) -> ApplyFn:
 
 
 def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
-               stand_in: str | None = None) -> PolicySuite:
-    """The four policies of an init mode (latest checkpoints under runs/ or models/policies/).
+               stand_in: str | None = None, names: tuple = POLICY_NAMES) -> PolicySuite:
+    """The four policies of an init mode (latest checkpoints under runs/ or models/policies/), or
+    those of `names` in that order (("mixed",): the end-to-end baseline as a one-policy suite).
 
     A missing policy is an error, unless `stand_in` names a policy to use in its place; that is
     for exercising the pipeline before every policy is trained, and the substitution is recorded in
@@ -76,7 +77,9 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
     from biped_switch import evaluate
     from biped_switch import train as train_lib
 
-    found = {n: evaluate.find_policy(n, init, pathlib.Path(runs)) for n in POLICY_NAMES}
+    found = {n: evaluate.find_policy(n, init, pathlib.Path(runs)) for n in names}
+    if stand_in is not None and stand_in not in found:
+        found[stand_in] = evaluate.find_policy(stand_in, init, pathlib.Path(runs))
     missing = [n for n, c in found.items() if c is None]
     if missing and (stand_in is None or found.get(stand_in) is None):
         raise FileNotFoundError(
@@ -84,7 +87,7 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
             f"models/policies/ (train with `python -m biped_switch.train --policy P --init {init}`"
             + (f"; the stand-in {stand_in!r} is missing too" if stand_in else "") + ")")
     params, sources, run_cfg = [], [], None
-    for n in POLICY_NAMES:
+    for n in names:
         ckpt = found[n] if found[n] is not None else found[stand_in]
         p, prog = train_lib.load_checkpoint(ckpt)
         cfg = json.loads((ckpt.parent.parent / "config.json").read_text())

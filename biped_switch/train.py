@@ -222,7 +222,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
             last.update(t=now, steps=n)
             ep = last["episode"]
             rew, length = ep.get("episode/sum_reward", np.nan), ep.get("episode/length", np.nan)
-            left = (cfg.total_timesteps - step0 - n) / max(sps, 1e-9)
+            left = max(cfg.total_timesteps - step0 - n, 0) / max(sps, 1e-9)  # Brax overshoots a little
             print_fn(f"[{cfg.policy}/{cfg.init}] step {step0 + n:,}  episode reward {rew:.1f}  "
                      f"length {length:.0f}  stage {curr_lib.STAGES[int(cs.stage)]} "
                      f"d={float(cs.difficulty):.2f} guide={float(cs.guide_scale):.2f} "

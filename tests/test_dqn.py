@@ -46,7 +46,7 @@ class FakeEnv(Env):
         return {"distance_m": x, "progress_frac": t / self.end_step, "success": done, "fell": z,
                 "fail_kind": z - 1, "detected_kind": kind_at(t).astype(jnp.float32)}
 
-    def reset(self, rng, track_id=None):
+    def reset(self, rng, track_id=None, guide_scale=None):
         if track_id is None:
             track_id = jax.random.randint(rng, (), 0, self.bank.size)
         t = jnp.zeros((), jnp.int32)
@@ -385,6 +385,7 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
 
 
 # ----------------------------------------------------------------------- the real env
+@pytest.mark.slow  # about 60 s on 2 cores; the fake-env tests above cover the same logic
 def test_collection_and_update_on_the_real_env(env, fns, batch0, traces):
     """Three collection steps and a few updates on the real MJX env, stepped by conftest's jitted
     batched step (compiled once per session, shared: the physics adds no compile here), with

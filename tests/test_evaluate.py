@@ -73,3 +73,33 @@ def test_retrain_cost_from_logs(tmp_path):
     assert rows["end_to_end"]["hours"] == pytest.approx(3.0)
     md = ev.table3_markdown(ev.retrain_cost(runs, res))
     assert "| ours | 1.90 |" in md and "| end_to_end | 3.00 |" in md
+
+
+def _fake_ckpt(run_dir, step=1):
+    ck = run_dir / "checkpoints" / f"{step:012d}"
+    ck.mkdir(parents=True)
+    (ck / "progress.json").write_text("{}")
+
+
+def test_available_methods_names_what_is_missing(tmp_path):
+    runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
+    _fake_ckpt(runs / "walk_stand")
+    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup, tmp_path / "no_dqn")
+    assert ok == ["random", "detection", "com_over_feet"]
+    why = dict(s.split(": ", 1) for s in skipped)
+    assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end"}
+    assert "make train-dqn" in why["dqn"] and "--policy mixed" in why["end_to_end"]
+    assert "random-init walk" in why["estimator_no_overlap"]
+    # once the parts exist, every method is available
+    _fake_ckpt(runs / "walk_random")
+    _fake_ckpt(runs / "mixed_stand")
+    _fake_ckpt(tmp_path / "dqn")
+    for init in ("stand", "random"):
+        for k in ("jumps", "gaps", "stairs"):
+            (est / f"{init}_{k}").mkdir(parents=True)
+    lookup.mkdir()
+    (lookup / "lookup_stand.json").write_text("{}")
+    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup, tmp_path / "dqn")
+    assert ok == list(ev.MULTI_METHODS) and skipped == []
+    assert ev.find_dqn(tmp_path / "dqn") == tmp_path / "dqn"
+    assert ev.find_dqn(tmp_path / "no_dqn") is None

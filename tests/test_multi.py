@@ -84,3 +84,24 @@ def test_table2_metrics_on_synthetic_outcomes():
     md = evaluate.table2_markdown([row])
     assert "| estimator | 10 | 78.0" in md and "| 60.0 (31.3-83.2) | 20.0 | 0.0 | 10.0 |" in md
     assert "82.4 / 71.4" in md  # the paper's row beside ours
+
+
+def test_baseline_rollout_compares_like_with_like(env, multi_fn):
+    """The baselines' rollout (dqn.dqn_rollout, used for the DQN and, with a one-policy suite, the
+    end-to-end policy) starts from the same states on the same tracks with the same horizon and
+    end-of-episode protocol as the switching methods: with identical (zero-torque) policies under
+    the guides, the physics, and so every outcome, must agree."""
+    from biped_switch import dqn
+
+    def q_first(_, x):  # evaluate.BaselineSetup's selector for the end-to-end policy
+        return jnp.zeros(x.shape[:-1] + (1,))
+
+    run = jax.jit(lambda rng: dqn.dqn_rollout(
+        env, _apply, PARAMS[:1], q_first, jnp.zeros(()), rng, B, HORIZON,
+        track_ids=jnp.asarray(TRACK_IDS), chunk=40, guide_scale=1.0))
+    base = jax.device_get(run(jax.random.PRNGKey(0)))
+    ref = jax.device_get(multi_fn(sw.make_rules("detection"), jax.random.PRNGKey(0)))
+    np.testing.assert_array_equal(base["length"], ref["length"])
+    for k in ("progress_frac", "distance_m", "fell", "success", "done"):
+        np.testing.assert_allclose(base[k], ref[k], atol=1e-5, err_msg=k)
+    assert np.all(base["n_switches"] == 0) and np.all(ref["length"] > 0)
