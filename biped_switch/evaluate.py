@@ -511,13 +511,12 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
     rows, missing = [], []
     pol_s = {}
     for p in ("jumps", "gaps", "stairs"):
-        for base in (runs, pathlib.Path("models/policies")):
-            r = _run_wall_s(base / f"{p}_{init}")
-            if r is not None:
-                pol_s[p] = r
-                break
-        else:
+        r = next((w for w in (_run_wall_s(b / f"{p}_{init}")
+                              for b in (runs, pathlib.Path("models/policies"))) if w is not None), None)
+        if r is None:
             missing.append(f"policy {p}_{init}")
+        else:
+            pol_s[p] = r
     policy_h = np.mean([v[0] for v in pol_s.values()]) / 3600 if pol_s else None
     sweep_h, est_h = {}, {}
     lookup = results / "lookup" / f"lookup_{init}.json"
@@ -539,15 +538,17 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
     rows.append({"method": "ours", "hours": sum(ours_parts.values()) if ours_ok else None,
                  "parts": ours_parts, "device": ", ".join(devices) or "?",
                  "paper_hours": PAPER_TABLE3_H["ours"]})
-    dqn = _run_wall_s(runs / f"dqn_{init}")
+    dqn_dirs = (runs / f"dqn_{init}", pathlib.Path("models/baselines") / f"dqn_{init}")
+    dqn = next((w for w in map(_run_wall_s, dqn_dirs) if w is not None), None)
     if dqn is None:
-        missing.append(f"DQN run {runs / f'dqn_{init}'}")
+        missing.append(f"DQN run {' or '.join(map(str, dqn_dirs))}")
     rows.append({"method": "dqn", "hours": policy_h + dqn[0] / 3600 if dqn and policy_h else None,
                  "parts": {"new policy": policy_h, "selector": dqn[0] / 3600 if dqn else None},
                  "device": dqn[1] if dqn else "?", "paper_hours": PAPER_TABLE3_H["dqn"]})
-    e2e = _run_wall_s(runs / f"mixed_{init}")
+    e2e_dirs = (runs / f"mixed_{init}", pathlib.Path("models/policies") / f"mixed_{init}")
+    e2e = next((w for w in map(_run_wall_s, e2e_dirs) if w is not None), None)
     if e2e is None:
-        missing.append(f"end-to-end run {runs / f'mixed_{init}'}")
+        missing.append(f"end-to-end run {' or '.join(map(str, e2e_dirs))}")
     rows.append({"method": "end_to_end", "hours": e2e[0] / 3600 if e2e else None,
                  "parts": {"policy": e2e[0] / 3600 if e2e else None},
                  "device": e2e[1] if e2e else "?", "paper_hours": PAPER_TABLE3_H["end_to_end"]})
