@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-all bench bench-1art train train-all render-deps wheels clean train-estimators train-dqn
+.PHONY: reproduce install demo test test-all bench bench-1art train train-all render-deps wheels clean train-estimators train-dqn
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -78,3 +78,15 @@ train-estimators: $(STAMP)
 DQN_ARGS ?=
 train-dqn: $(STAMP)
 	$(PY) -m biped_switch.dqn $(DQN_ARGS)
+
+# The paper's results at full size, from trained policies (make train-all first; a GPU host):
+# sweeps + lookup tables, estimators, the DQN, Table I, Table II (2,500 trials, 8 methods), Table III.
+# Sweeps and training runs resume from their saved parts and checkpoints.
+reproduce: $(STAMP)
+	$(PY) -m biped_switch.sweep --init stand
+	$(PY) -m biped_switch.sweep --init random
+	$(MAKE) train-estimators train-dqn
+	$(PY) -m biped_switch.train --policy mixed --init stand $(TRAIN_ARGS)
+	$(PY) -m biped_switch.evaluate single --trials 500
+	$(PY) -m biped_switch.evaluate multi --trials 2500
+	$(PY) -m biped_switch.evaluate retrain-cost
