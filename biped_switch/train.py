@@ -286,8 +286,12 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
 
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
 
-    def series(key):
-        pts = [(float(r["step"]), float(r[key])) for r in rows if r.get(key) not in (None, "")]
+    def series(key):  # a row logged again after a restart supersedes the older rows from its step on
+        pts = []
+        for r in rows:
+            if r.get(key) not in (None, ""):
+                step = float(r["step"])
+                pts = [pt for pt in pts if pt[0] < step] + [(step, float(r[key]))]
         return np.array(pts).reshape(-1, 2)
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
