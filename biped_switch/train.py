@@ -276,6 +276,17 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     return progress
 
 
+def curve_series(rows: list[dict], key: str) -> np.ndarray:
+    """(N, 2) (step, value) of `key` over metrics.csv rows. A row logged again after a restart
+    supersedes the older rows from its step on, so the curve never runs backwards."""
+    pts = []
+    for r in rows:
+        if r.get(key) not in (None, ""):
+            step = float(r["step"])
+            pts = [pt for pt in pts if pt[0] < step] + [(step, float(r[key]))]
+    return np.array(pts).reshape(-1, 2)
+
+
 def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
     """Training curves of a run (metrics.csv): episode reward and length, eval reward per step,
     curriculum values, against environment steps."""
@@ -286,13 +297,8 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
 
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
 
-    def series(key):  # a row logged again after a restart supersedes the older rows from its step on
-        pts = []
-        for r in rows:
-            if r.get(key) not in (None, ""):
-                step = float(r["step"])
-                pts = [pt for pt in pts if pt[0] < step] + [(step, float(r[key]))]
-        return np.array(pts).reshape(-1, 2)
+    def series(key):
+        return curve_series(rows, key)
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
     for key, ax in (("episode/sum_reward", axes[0]), ("episode/length", axes[0].twinx())):

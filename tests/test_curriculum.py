@@ -76,3 +76,13 @@ def test_dict_round_trip():
     d = cs.as_dict()
     assert d["stage_name"] == "pushes"
     assert cl.CurriculumState.from_dict(d) == cs
+
+
+def test_curve_series_after_a_restart():
+    from biped_switch.train import curve_series
+
+    rows = [{"step": "1", "r": "1"}, {"step": "2", "r": "2"}, {"step": "3", "r": ""},
+            {"step": "4", "r": "4"},  # chunk abandoned by a restart at step 2
+            {"step": "2", "r": "20"}, {"step": "3", "r": "30"}]
+    np.testing.assert_array_equal(curve_series(rows, "r"), [[1, 1], [2, 20], [3, 30]])
+    assert curve_series(rows, "missing").shape == (0, 2)
