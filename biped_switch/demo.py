@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     p.add_argument("--runs", default="runs", help="trained policies (then models/policies/)")
     p.add_argument("--estimators", default="models/estimators")
     p.add_argument("--lookup", default="experiments/results/lookup")
-    p.add_argument("--dqn", default=None, help="DQN run directory (default: evaluate.DQN_DIRS)")
+    p.add_argument("--dqn", default=None, help="DQN run directory (default: RUNS/dqn_stand, then models/baselines/)")
     p.add_argument("--pipeline-check", default="models/pipeline_check",
                    help="used when no trained walk policy is found: the committed pipeline-check "
                         "suite (a short CPU walk run and estimators from stand-in sweeps)")
@@ -53,23 +53,20 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     out = pathlib.Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    untrained = [n for n in pol.POLICY_NAMES
-                 if evaluate.find_policy(n, "stand", pathlib.Path(a.runs)) is None]
+    untrained = _untrained(a.runs)
     if untrained:  # a partial suite would be mostly stand-ins: use the committed check instead
         print(f"demo: no trained stand-init {', '.join(untrained)} policy in {a.runs}/ or "
               f"models/policies/")
         a.runs = a.pipeline_check
         a.estimators = str(pathlib.Path(a.pipeline_check) / "estimators")
         a.lookup = "experiments/results/pipeline_check/lookup"
-        a.dqn = str(pathlib.Path(a.pipeline_check) / "dqn_stand")
         print(f"demo: using the pipeline-check suite in {a.pipeline_check}/")
     methods, skipped = evaluate.available_methods(evaluate.MULTI_METHODS, a.runs, a.estimators,
                                                   a.lookup, a.dqn, stand_in=a.stand_in)
     if not methods:
         print("demo: nothing to run: " + "; ".join(skipped), file=sys.stderr)
         return 1
-    found = {n: evaluate.find_policy(n, "stand", pathlib.Path(a.runs)) for n in pol.POLICY_NAMES}
-    stand_ins = [n for n, c in found.items() if c is None]
+    stand_ins = _untrained(a.runs)
     guide = a.guide_scale if a.guide_scale is not None else (1.0 if stand_ins else 0.0)
     print(f"demo: {len(methods)} methods x {a.trials} mixed 7-artifact tracks "
           f"({a.horizon_s:g} s limit), then Fig. 5 and a GIF of one trial. Takes about 5-10 minutes "
@@ -106,6 +103,11 @@ def main(argv=None) -> int:
     print(json.dumps({"demo_wall_s": summary["wall_s"], "device": summary["device"],
                       "video": summary.get("video")}))
     return 0
+
+
+def _untrained(runs) -> list:
+    """Stand-init behaviour policies with no checkpoint under `runs`/ or models/policies/."""
+    return [n for n in pol.POLICY_NAMES if evaluate.find_policy(n, "stand", pathlib.Path(runs)) is None]
 
 
 def _video(rec: dict, setup, path: pathlib.Path) -> str | None:

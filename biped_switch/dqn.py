@@ -594,7 +594,7 @@ def dqn_rollout(env, suite_apply, suite_params, q_apply, q_params, rng: jax.Arra
         live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
         n_sw = n_sw + (live & (choice != prev)).astype(jnp.int32)
         prev = jnp.where(live, choice, prev)
-        state = _where(live, nxt, state)
+        state = nxt  # ended episodes step on unread, as in multi_rollout: no per-step state mask
         metrics = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt.metrics, metrics)
         length = length + live
         ended = jnp.maximum(ended, nxt.done * live)

@@ -108,6 +108,12 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
     return out
 
 
+def _dist_success_cells(r: dict) -> str:
+    """The "% distance (CI) | % success (CI)" cells of a Table I or II row."""
+    return (f"{r['distance_pct']:.1f} ({r['distance_ci'][0]:.1f}-{r['distance_ci'][1]:.1f}) | "
+            f"{r['success_pct']:.1f} ({r['success_ci'][0]:.1f}-{r['success_ci'][1]:.1f})")
+
+
 def table1_markdown(rows: list[dict]) -> str:
     lines = ["| policy | init | trials | % total dist. (95% CI) | % success (95% CI) | paper dist. | "
              "paper success | trained steps | curriculum |",
@@ -118,9 +124,7 @@ def table1_markdown(rows: list[dict]) -> str:
             else ("-", "-")
         c = r["curriculum"]
         lines.append(
-            f"| {r['policy']} | {r['init']} | {r['n']} | {r['distance_pct']:.1f} "
-            f"({r['distance_ci'][0]:.1f}-{r['distance_ci'][1]:.1f}) | {r['success_pct']:.1f} "
-            f"({r['success_ci'][0]:.1f}-{r['success_ci'][1]:.1f}) | {pd} | {ps} | "
+            f"| {r['policy']} | {r['init']} | {r['n']} | {_dist_success_cells(r)} | {pd} | {ps} | "
             f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} g={c['guide_scale']:.1f} |")
     return "\n".join(lines)
 
@@ -142,15 +146,15 @@ SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
                   "estimator_no_overlap")
 BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain (issue 5)
 MULTI_METHODS = SWITCH_METHODS + BASELINES
-DQN_DIRS = ("runs/dqn_stand", "models/baselines/dqn_stand")  # searched in order
+BASELINE_DIR = pathlib.Path("models/baselines")  # committed DQN runs, as models/policies/ for PPO
 
 
-def find_dqn(dqn_dir: str | None = None) -> pathlib.Path | None:
-    """The DQN run directory with a checkpoint: `dqn_dir`, else the first of DQN_DIRS."""
-    for d in [dqn_dir] if dqn_dir else DQN_DIRS:
-        if train_lib.latest_checkpoint(pathlib.Path(d)) is not None:
-            return pathlib.Path(d)
-    return None
+def find_dqn(runs, init: str = "stand", dqn_dir=None) -> pathlib.Path | None:
+    """The DQN run directory with a checkpoint: `dqn_dir` if given, else <runs>/dqn_<init>, then
+    models/baselines/dqn_<init> (find_policy's search, for the selector)."""
+    dirs = [dqn_dir] if dqn_dir else [pathlib.Path(runs) / f"dqn_{init}", BASELINE_DIR / f"dqn_{init}"]
+    return next((pathlib.Path(d) for d in dirs
+                 if train_lib.latest_checkpoint(pathlib.Path(d)) is not None), None)
 
 
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
@@ -176,9 +180,9 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
         if m == "lookup" and not (pathlib.Path(lookup_dir) / "lookup_stand.json").exists():
             skipped.append(f"{m}: no lookup table in {lookup_dir} (python -m biped_switch.sweep)")
             continue
-        if m == "dqn" and find_dqn(dqn_dir) is None:
-            skipped.append(f"{m}: no DQN checkpoint in {dqn_dir or ' or '.join(DQN_DIRS)} "
-                           f"(make train-dqn)")
+        if m == "dqn" and find_dqn(runs, "stand", dqn_dir) is None:
+            skipped.append(f"{m}: no DQN checkpoint in {dqn_dir or f'{runs}/dqn_stand'} or "
+                           f"{BASELINE_DIR}/ (make train-dqn)")
             continue
         ok.append(m)
     return ok, skipped
@@ -254,9 +258,10 @@ class BaselineSetup:
         if method not in BASELINES:
             raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
         if method == "dqn":
-            run_dir = find_dqn(dqn_dir)
+            run_dir = find_dqn(runs, "stand", dqn_dir)
             if run_dir is None:
-                raise FileNotFoundError(f"no DQN checkpoint in {dqn_dir or DQN_DIRS} (make train-dqn)")
+                raise FileNotFoundError(f"no stand-init DQN checkpoint under {dqn_dir or runs}/ or "
+                                        f"{BASELINE_DIR}/ (make train-dqn)")
             self.env = env_lib.make_env("mixed", "stand", detector_one_hot=True, n_tracks=trials,
                                         seed=MULTI_TRACK_SEED)
             self.suite = pol.load_suite("stand", dqn_lib._suite_env(self.env), runs, stand_in=stand_in)
@@ -324,9 +329,8 @@ def table2_markdown(rows: list[dict]) -> str:
         paper = PAPER_TABLE2.get(r["method"])
         f = r["fail_on"]
         lines.append(
-            f"| {r['method']} | {r['n']} | {r['distance_pct']:.1f} ({r['distance_ci'][0]:.1f}-"
-            f"{r['distance_ci'][1]:.1f}) | {r['success_pct']:.1f} ({r['success_ci'][0]:.1f}-"
-            f"{r['success_ci'][1]:.1f}) | {f['gaps']:.1f} | {f['jumps']:.1f} | {f['stairs']:.1f} | "
+            f"| {r['method']} | {r['n']} | {_dist_success_cells(r)} | "
+            f"{f['gaps']:.1f} | {f['jumps']:.1f} | {f['stairs']:.1f} | "
             + (" / ".join(f"{v}" for v in paper) if paper else "-") + " |")
     return "\n".join(lines)
 
@@ -420,7 +424,7 @@ def main(argv=None) -> int:
     m.add_argument("--estimators", default="models/estimators")
     m.add_argument("--lookup", default="experiments/results/lookup")
     m.add_argument("--dqn", default=None,
-                   help=f"DQN run directory (default: the first of {', '.join(DQN_DIRS)} with a checkpoint)")
+                   help=f"DQN run directory (default: RUNS/dqn_stand, then {BASELINE_DIR}/dqn_stand)")
     m.add_argument("--stand-in", default=None, choices=train_lib.POLICIES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
     m.add_argument("--guide-scale", type=float, default=0.0,
@@ -492,9 +496,8 @@ def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list
 PAPER_TABLE3_H = {"ours": 20.0, "dqn": 25.0, "end_to_end": 34.0}  # hours, CPU (Tidd et al.)
 
 
-def _run_wall_s(run_dir: pathlib.Path):
-    """(wall seconds, device, step) recorded in a run's latest checkpoint, or None."""
-    ckpt = train_lib.latest_checkpoint(run_dir)
+def _run_wall_s(ckpt: pathlib.Path | None):
+    """(wall seconds, device, step) recorded with a checkpoint (a run's latest), or None."""
     if ckpt is None:
         return None
     prog = json.loads((ckpt / "progress.json").read_text())
@@ -511,8 +514,7 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
     rows, missing = [], []
     pol_s = {}
     for p in ("jumps", "gaps", "stairs"):
-        r = next((w for w in (_run_wall_s(b / f"{p}_{init}")
-                              for b in (runs, pathlib.Path("models/policies"))) if w is not None), None)
+        r = _run_wall_s(find_policy(p, init, runs))
         if r is None:
             missing.append(f"policy {p}_{init}")
         else:
@@ -538,17 +540,16 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
     rows.append({"method": "ours", "hours": sum(ours_parts.values()) if ours_ok else None,
                  "parts": ours_parts, "device": ", ".join(devices) or "?",
                  "paper_hours": PAPER_TABLE3_H["ours"]})
-    dqn_dirs = (runs / f"dqn_{init}", pathlib.Path("models/baselines") / f"dqn_{init}")
-    dqn = next((w for w in map(_run_wall_s, dqn_dirs) if w is not None), None)
+    dqn_dir = find_dqn(runs, init)
+    dqn = _run_wall_s(train_lib.latest_checkpoint(dqn_dir) if dqn_dir else None)
     if dqn is None:
-        missing.append(f"DQN run {' or '.join(map(str, dqn_dirs))}")
+        missing.append(f"DQN run dqn_{init}")
     rows.append({"method": "dqn", "hours": policy_h + dqn[0] / 3600 if dqn and policy_h else None,
                  "parts": {"new policy": policy_h, "selector": dqn[0] / 3600 if dqn else None},
                  "device": dqn[1] if dqn else "?", "paper_hours": PAPER_TABLE3_H["dqn"]})
-    e2e_dirs = (runs / f"mixed_{init}", pathlib.Path("models/policies") / f"mixed_{init}")
-    e2e = next((w for w in map(_run_wall_s, e2e_dirs) if w is not None), None)
+    e2e = _run_wall_s(find_policy("mixed", init, runs))
     if e2e is None:
-        missing.append(f"end-to-end run {' or '.join(map(str, e2e_dirs))}")
+        missing.append(f"end-to-end run mixed_{init}")
     rows.append({"method": "end_to_end", "hours": e2e[0] / 3600 if e2e else None,
                  "parts": {"policy": e2e[0] / 3600 if e2e else None},
                  "device": e2e[1] if e2e else "?", "paper_hours": PAPER_TABLE3_H["end_to_end"]})

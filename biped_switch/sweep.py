@@ -36,6 +36,7 @@ from biped_switch import policies as pol
 from biped_switch import terrain
 from biped_switch.config import default_sweep_config, default_terrain_config
 from biped_switch.rollout import over_devices
+from biped_switch.switching import smoothed_success_pct
 
 SWEEP_TRACK_SEED = 20_000  # sweep tracks: disjoint from training (0..) and evaluation (10,000..)
 N_WINDOW = 5
@@ -214,11 +215,8 @@ def plot_switch_success(tables: dict, path: pathlib.Path, title: str = "",
             cnt = t["count"][j]
             if name == target or cnt.sum() == 0:
                 continue
-            k = np.ones(smooth_bins)
-            s = np.convolve(np.nan_to_num(t["rate"][j] * cnt), k, "same")
-            n = np.convolve(cnt, k, "same")
-            with np.errstate(invalid="ignore", divide="ignore"):
-                ax.plot(t["bins_m"] + 0.005, 100 * s / n, label=f"{name} -> {target} (n={int(cnt.sum())})")
+            ax.plot(t["bins_m"] + 0.005, smoothed_success_pct(t["rate"][j], cnt, smooth_bins),
+                    label=f"{name} -> {target} (n={int(cnt.sum())})")
             if np.isfinite(t["best_m"][j]):
                 ax.axvline(t["best_m"][j], ls=":", lw=0.8, color=ax.lines[-1].get_color())
         ax.set_xlim(0.9, 0)  # the robot approaches from the left: far -> near

@@ -74,6 +74,16 @@ class SwitchState(NamedTuple):
     n_switches: jax.Array  # int32
 
 
+def smoothed_success_pct(rate: np.ndarray, count: np.ndarray, bins: int) -> np.ndarray:
+    """% success per 1 cm bin as a count-weighted moving mean over `bins` bins (the paper's Fig. 4b,
+    drawn by sweep.plot_switch_success and the notebook); NaN where no point is near."""
+    k = np.ones(bins)
+    s = np.convolve(np.nan_to_num(rate * count), k, "same")
+    n = np.convolve(count, k, "same")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return 100 * s / n
+
+
 def init_state(n_envs: int) -> SwitchState:
     return SwitchState(jnp.zeros(n_envs, jnp.int32), jnp.full(n_envs, -1, jnp.int32),
                        jnp.zeros(n_envs, jnp.float32), jnp.zeros(n_envs, jnp.int32))

@@ -367,21 +367,27 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     p2 = dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite)
     # resumed: 2 more chunks; the empty buffer refills (4 iterations) before updates resume
     assert p2["step"] == 120 and p2["n_updates"] == 6 + (20 - 4) and p2["wall_s"] > p1["wall_s"]
+    x = np.linspace(-1, 1, 3 * Q_IN, dtype=np.float32).reshape(3, Q_IN)
+    _check_resumed_run(tmp_path, cfg, env, suite.apply, lines, 120, q1, x)
+    assert dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite) == {}  # done
+
+
+def _check_resumed_run(run_dir, cfg, env, apply, lines, final_step, q1, x):
+    """What a DQN run resumed to its end shows: progress lines, one compiled call, metrics rows in
+    step order, and a saved Q-net trained on from the first chunk's `q1` with its normaliser kept."""
     assert any(line.startswith("resuming") for line in lines)
     assert any("steps/s" in line and "left ~" in line for line in lines)
-    fns = dqn.make_train_fns(cfg, env, suite.apply)
+    fns = dqn.make_train_fns(cfg, env, apply)
     assert fns.run._cache_size() == 1  # the resumed run reused the compiled call
-    rows = (tmp_path / "metrics.csv").read_text().splitlines()
+    rows = (run_dir / "metrics.csv").read_text().splitlines()
     steps = [float(r.split(",")[0]) for r in rows[1:]]
-    assert steps == sorted(steps) and steps[-1] == 120
-    q_apply, q2 = dqn.load_dqn(tmp_path)
+    assert steps == sorted(steps) and steps[-1] == final_step
+    q_apply, q2 = dqn.load_dqn(run_dir)
     q_apply = jax.jit(q_apply)
-    x = np.linspace(-1, 1, 3 * Q_IN, dtype=np.float32).reshape(3, Q_IN)
     out = np.asarray(q_apply(q2, x))
-    assert out.shape == (3, 4) and np.all(np.isfinite(out))
+    assert out.shape == (x.shape[0], 4) and np.all(np.isfinite(out))
     assert not np.allclose(q_apply(q1, x), out)  # trained on after the resume
     np.testing.assert_array_equal(q2["norm"]["mean"], q1["norm"]["mean"])  # frozen across resume
-    assert dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite) == {}  # done
 
 
 # ----------------------------------------------------------------------- the real env
@@ -475,21 +481,9 @@ def test_train_dqn_on_the_real_env_checkpoints_resumes_and_loads(env, batch0, tm
     assert last["episode_env_return"] > 0
     # nothing is detected at the start: walk earns the bonus, so return - env return = bonus * n
     assert 0 <= last["episode_return"] - last["episode_env_return"] <= 10 * cfg.oracle_bonus + 1e-4
-    assert any(line.startswith("resuming") for line in lines)
-    assert any("steps/s" in line and "left ~" in line for line in lines)
     print(f"\nreal env, {cfg.num_envs} envs: last chunk {p2['env_steps_per_s']:.0f} env steps/s "
           f"(collection + updates), first session {p1['wall_s']:.0f} s incl. compile")
-    fns = dqn.make_train_fns(cfg, env, zero.apply)
-    assert fns.run._cache_size() == 1  # the resumed run reused the compiled call
-    rows = (tmp_path / "metrics.csv").read_text().splitlines()
-    steps = [float(r.split(",")[0]) for r in rows[1:]]
-    assert steps == sorted(steps) and steps[-1] == 36
-    q_apply, q2 = dqn.load_dqn(tmp_path)
-    q_apply = jax.jit(q_apply)
     x = np.asarray(jax.tree.map(lambda a: a[:2], batch0).obs)
     x = np.concatenate([x, np.zeros((2, 3), np.float32)], axis=1)
-    out = np.asarray(q_apply(q2, x))
-    assert out.shape == (2, 4) and np.all(np.isfinite(out))
-    assert not np.allclose(q_apply(q1, x), out)  # trained on after the resume
-    np.testing.assert_array_equal(q2["norm"]["mean"], q1["norm"]["mean"])  # frozen across resume
+    _check_resumed_run(tmp_path, cfg, env, zero.apply, lines, 36, q1, x)
     assert dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=zero, pool=pool) == {}

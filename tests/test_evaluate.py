@@ -84,7 +84,7 @@ def _fake_ckpt(run_dir, step=1):
 def test_available_methods_names_what_is_missing(tmp_path):
     runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
     _fake_ckpt(runs / "walk_stand")
-    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup, tmp_path / "no_dqn")
+    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup)
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end"}
@@ -93,13 +93,14 @@ def test_available_methods_names_what_is_missing(tmp_path):
     # once the parts exist, every method is available
     _fake_ckpt(runs / "walk_random")
     _fake_ckpt(runs / "mixed_stand")
-    _fake_ckpt(tmp_path / "dqn")
+    _fake_ckpt(runs / "dqn_stand")
     for init in ("stand", "random"):
         for k in ("jumps", "gaps", "stairs"):
             (est / f"{init}_{k}").mkdir(parents=True)
     lookup.mkdir()
     (lookup / "lookup_stand.json").write_text("{}")
-    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup, tmp_path / "dqn")
+    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup)
     assert ok == list(ev.MULTI_METHODS) and skipped == []
-    assert ev.find_dqn(tmp_path / "dqn") == tmp_path / "dqn"
-    assert ev.find_dqn(tmp_path / "no_dqn") is None
+    assert ev.find_dqn(runs) == runs / "dqn_stand"
+    assert ev.find_dqn(runs, dqn_dir=tmp_path / "no_dqn") is None  # an explicit directory only
+    assert ev.find_dqn(tmp_path / "no_runs", "random") is None

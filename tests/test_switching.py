@@ -196,3 +196,11 @@ def test_lookup_ties_go_to_the_earliest_switch():
     t = sweep.lookup_table(np.array([0.1, 0.5, 0.7]), np.array([1, 1, 1]), np.array([0, 0, 0]),
                            "jumps")
     assert t["best_m"][0] == pytest.approx(0.705)
+
+
+def test_smoothed_success_pct_hand_values():
+    # 3-bin windows: bin 0 sees bins 0-1 (2 successes of 4 points), bin 2 sees bins 1-2 (0 of 2)
+    out = sw.smoothed_success_pct(np.array([1.0, 0.0, np.nan]), np.array([2.0, 2.0, 0.0]), 3)
+    np.testing.assert_allclose(out, [50.0, 50.0, 0.0])
+    far = sw.smoothed_success_pct(np.array([1.0, np.nan, np.nan, np.nan]), np.array([1.0, 0, 0, 0]), 3)
+    assert far[1] == 100.0 and np.isnan(far[2]) and np.isnan(far[3])  # no point within a bin

@@ -178,11 +178,19 @@ def pipeline_label(doc: dict) -> str | None:
     return None
 
 
-def _label_reason(doc: dict, reasons: list[str]) -> None:
+def _conclude(doc: dict, reasons: list[str], rows=None, table: str = "", per: str = "") -> list[str]:
+    """Adds the file's own pipeline-check label (and, for a table's `rows`, too few trials per
+    `per` against the paper) to `reasons`, prints the verdict line and returns the reasons."""
+    if rows is not None:
+        n = min((r["n"] for r in rows), default=0)
+        if n < PAPER_TRIALS[table]:
+            reasons.append(f"{n} trials per {per} (paper: {PAPER_TRIALS[table]})")
     lab = pipeline_label(doc)
     if lab:
         print(f"  labelled PIPELINE_CHECK: {lab}")
         reasons.insert(0, f"labelled so ({lab})")
+    print(verdict(reasons))
+    return reasons
 
 
 def verdict(reasons: list[str]) -> str:
@@ -221,12 +229,7 @@ def provenance_table1(doc: dict, path) -> list[str]:
         reasons.append("stand-in policies: " + ", ".join(stand_in))
     if unfinished:
         reasons.append("policies not through their curriculum: " + ", ".join(unfinished))
-    n = min((r["n"] for r in rows), default=0)
-    if n < PAPER_TRIALS["table1"]:
-        reasons.append(f"{n} trials per row (paper: {PAPER_TRIALS['table1']})")
-    _label_reason(doc, reasons)
-    print(verdict(reasons))
-    return reasons
+    return _conclude(doc, reasons, rows, "table1", "row")
 
 
 def provenance_table2(doc: dict, path) -> list[str]:
@@ -255,12 +258,7 @@ def provenance_table2(doc: dict, path) -> list[str]:
         reasons.append(f"--stand-in {s['stand_in']}")
     if (s.get("guide_scale") or 0) > 0:
         reasons.append(f"scripted guide forces on (guide_scale {s['guide_scale']:g})")
-    n = min((r["n"] for r in rows), default=0)
-    if n < PAPER_TRIALS["table2"]:
-        reasons.append(f"{n} trials per method (paper: {PAPER_TRIALS['table2']})")
-    _label_reason(doc, reasons)
-    print(verdict(reasons))
-    return reasons
+    return _conclude(doc, reasons, rows, "table2", "method")
 
 
 def provenance_lookup(doc: dict, path) -> list[str]:
@@ -301,9 +299,7 @@ def provenance_lookup(doc: dict, path) -> list[str]:
         reasons.append("artifacts below full difficulty (" + ", ".join(easy) + ")")
     if few:
         reasons.append(f"sweep points {', '.join(few)} (paper: {PAPER_SWEEP_POINTS:,} per target)")
-    _label_reason(doc, reasons)
-    print(verdict(reasons))
-    return reasons
+    return _conclude(doc, reasons)
 
 
 # ------------------------------------------------------------------------------- tables
@@ -590,6 +586,7 @@ def lookup_rows(doc: dict):
 def plot_fig4b(doc: dict, smooth_bins: int = 5, title: str = ""):
     """Success of switching against distance to the artifact, per (source -> target) pair."""
     from biped_switch.policies import POLICY_NAMES
+    from biped_switch.switching import smoothed_success_pct
 
     plt = _plt()
     tables = lookup_arrays(doc)
@@ -600,11 +597,7 @@ def plot_fig4b(doc: dict, smooth_bins: int = 5, title: str = ""):
             cnt = t["count"][j]
             if name == target or cnt.sum() == 0:
                 continue
-            k = np.ones(smooth_bins)
-            s = np.convolve(np.nan_to_num(t["rate"][j] * cnt), k, "same")
-            n = np.convolve(cnt, k, "same")
-            with np.errstate(invalid="ignore", divide="ignore"):
-                sm = 100 * s / n
+            sm = smoothed_success_pct(t["rate"][j], cnt, smooth_bins)
             c = colours.get(name)
             ax.scatter(t["bins_m"] + 0.005, 100 * t["rate"][j], s=4 + 20 * cnt / cnt.max(),
                        color=c, alpha=0.25, lw=0)
