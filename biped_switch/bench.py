@@ -7,6 +7,12 @@ eight sole spheres stay in contact: the physics does its full contact work every
 compile_s, control_steps_per_s, physics_steps_per_s, heightmap_share (the heightmap lookup's time as
 a fraction of a control step's) and n_boxes (the compiled box slots every step pays for), with the
 device and the versions.
+
+    python -m biped_switch.bench --estimator --points 100000 --epochs 3 --json
+
+Times switch-estimator training (issue 4: the paper spent about an hour per estimator) on random
+data of the sweep's shape: epoch 1 compiles, the later epochs give the training speed and the
+projected time of the configured 1,500 epochs.
 """
 
 from __future__ import annotations
@@ -94,6 +100,29 @@ def run(batch: int = 256, kind: str = "mixed", steps: int = 20, seed: int = 0,
     }
 
 
+def run_estimator(points: int, epochs: int, seed: int = 0) -> dict:
+    """Estimator training speed on `points` random (state, heightmap, label) rows."""
+    from biped_switch import estimator as est
+    from biped_switch.config import default_estimator_config
+
+    rng = np.random.default_rng(seed)
+    data = {"state": rng.normal(size=(points, est.STATE_SIZE)).astype(np.float32),
+            "heightmap": rng.uniform(size=(points, est.HM_SIZE)).astype(np.float16),
+            "label": rng.integers(0, 2, points).astype(np.int8),
+            "sample": np.arange(points) // 5}  # 5 points per switch, as the sweep stores them
+    cfg = default_estimator_config()
+    cfg.epochs = epochs
+    _, m = est.train_estimator(data, cfg, print_fn=lambda *_: None)
+    epoch_s = float(np.median(m["history"]["epoch_s"][1:])) if epochs > 1 else float("nan")
+    per_epoch = m["train_points"] // m["batch_size"] * m["batch_size"]
+    return {"what": "estimator", "points": points, "train_points": m["train_points"],
+            "epochs_timed": epochs - 1, "first_epoch_s": round(m["history"]["epoch_s"][0], 2),
+            "epoch_s": round(epoch_s, 5), "train_points_per_s": round(per_epoch / epoch_s, 1),
+            "projected_s_for_config_epochs": round(epoch_s * default_estimator_config().epochs, 1),
+            "config_epochs": int(default_estimator_config().epochs), "batch_size": m["batch_size"],
+            "device": str(jax.devices()[0]), "jax": jax.__version__, "python": platform.python_version()}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.bench", description=__doc__.split("\n")[0])
     p.add_argument("--batch", type=int, default=256)
@@ -102,7 +131,16 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--n-artifacts", type=int, default=None, help="artifacts per track (paper: 7)")
     p.add_argument("--json", action="store_true", help="print only the JSON object")
+    p.add_argument("--estimator", action="store_true", help="time switch-estimator training instead")
+    p.add_argument("--points", type=int, default=100_000, help="--estimator: data points")
+    p.add_argument("--epochs", type=int, default=3, help="--estimator: epochs (the first compiles)")
     a = p.parse_args(argv)
+    if a.estimator:
+        if a.points < 100 or a.epochs < 2:
+            p.error("--estimator needs --points >= 100 and --epochs >= 2")
+        res = run_estimator(a.points, a.epochs, a.seed)
+        print(json.dumps(res) if a.json else json.dumps(res, indent=2))
+        return 0
     if a.batch < 1 or a.steps < 1:
         p.error(f"--batch and --steps must be >= 1 (got {a.batch}, {a.steps})")
     if not a.json:

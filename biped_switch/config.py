@@ -127,7 +127,8 @@ def default_sweep_config() -> config_dict.ConfigDict:
         n_points=100_000,  # data points per target terrain kind (5 per switch sample)
         window=(-2, -1, 0, 1, 2),  # data points kept around the switch step t
         switch_max_m=0.9,  # switch at U(0, switch_max_m) before the artifact (= detect range)
-        steps_past=2,  # success: this many foot touchdowns past the artifact's end, no fall
+        steps_past=2,  # success: this many steps past the artifact's end, no fall (a step: a
+        # landing of the other foot than the last step's, so 2 = both feet; sweep.count_steps_past)
         horizon_s=20.0,  # a sample that has not succeeded or fallen by then is a failure
         lookup_bin_m=0.01,  # lookup table: success rate per 1 cm of switch distance (90 bins)
         batch=256,  # episodes per jitted rollout (split over local devices)

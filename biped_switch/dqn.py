@@ -39,8 +39,9 @@ runs on one device (the first); `dqn_rollout` can be split over devices with
 
 Input scaling: the Q-network normalises its input with statistics frozen when the buffer first
 holds `learning_starts` transitions (the state per column, the heightmap with one shared mean and
-std, the one-hot untouched; std floored at `norm_std_floor`, then clipped to +-10). They are part
-of the params (`params["norm"]`), so a checkpoint alone is enough to run the network.
+std, the one-hot untouched; std floored at `norm_std_floor`; the normalised input clipped to
++-10). They are part of the params (`params["norm"]`), so a checkpoint (with the run's `config.json`
+for the layer sizes) is enough to run the network.
 
 Replay buffer: a pytree of fixed-size arrays (a ring). Observations are stored split: the 51 state
 columns as float32, the heightmap and one-hot as float16 (heightmap values lie in [0, 1]; float16
@@ -48,13 +49,22 @@ keeps them to 5e-4), about 5 kB per observation and 10 kB per transition (obs an
 GPU preset's 500,000 transitions take about 5 GB.
 
 Checkpoints: every `chunk_env_steps` env steps, an Orbax checkpoint `checkpoints/<step>/` of the
-online and target params and the optimiser state, with `progress.json` (step, epsilon, updates,
-wall_s, env steps/s, the policies used incl. any stand-in); a rerun resumes from the latest one.
+online and target params and the optimiser state, with `progress.json` (step, `total_env_steps`:
+the target this session was asked to reach, so step < total_env_steps marks an unfinished run;
+epsilon: the schedule's value at `step`, the one the next iteration acts with; n_updates, wall_s,
+env steps/s, the policies used incl. any stand-in); a rerun resumes from the latest one.
 NOT saved: the replay buffer and the envs' states. After a resume the envs start new episodes and
 the buffer refills: no gradient update happens until it again holds `learning_starts` transitions
 (those env steps count towards the total). Step counts are rounded up to whole jitted calls
 (`log_every * num_envs` env steps). Metrics go to stdout, `metrics.csv` and TensorBoard (`tb/`).
-`wall_s` (all sessions, compile included) is what a retraining-cost table (Table III) reads.
+
+`wall_s` is what a retraining-cost table (Table III) reads. Summed over all sessions, it counts
+each session's setup (from the `train_dqn` call: config, env and bank build, policy loading,
+reset-pool draw, learner init, checkpoint restore: `session_setup_s`, summed over sessions in
+`setup_s_total`, None when a session predates that key) and every saved chunk's collection and
+updates, compiles included. It does NOT count process start and imports, checkpoint writing, or a
+chunk cut off before its checkpoint (its steps are lost too). The PPO trainer's `wall_s` leaves
+session setup out: subtract `setup_s_total` to compare the two.
 
 Evaluation: `load_dqn(run_dir)` -> (q_apply, q_params); `dqn_rollout(...)` plays the greedy
 choice on given tracks and returns the same per-episode keys as `switching.multi_rollout`.
@@ -421,7 +431,9 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
     """The jitted pieces of a run, cached per (env, suite apply, config): `reset_pool(key)` the
     pool of episode starts; `init(key, pool)` a fresh TrainState; `run(ts, suite_params, pool)`
     `log_every` iterations (donates `ts`) -> (ts, sums); plus `q_apply`, `q_init`, `optimizer`,
-    `max_steps`, `in_size`, `hm_size`."""
+    `max_steps`, `in_size`, `hm_size`. `sums` holds the per-iteration stats summed over the call
+    (`epsilon_used`: the epsilons the iterations acted with) and `epsilon`, the schedule's value at
+    the returned `ts.env_steps` (what the next call starts with)."""
     cache_key = (id(env), id(suite_apply), cfg.to_json_best_effort())
     if cache_key in _FNS_CACHE:
         return _FNS_CACHE[cache_key][2]
@@ -485,7 +497,8 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
 
         (params, target, opt_state, n_upd), m = jax.lax.cond(
             ready, learn, skip, (params, target, ts.opt_state, ts.n_updates))
-        st = {**st, "loss": m["loss"], "q": m["q"], "learned": ready.astype(jnp.float32)}
+        st = {**st, "loss": m["loss"], "q": m["q"], "learned": ready.astype(jnp.float32),
+              "epsilon_used": epsilon}
         ts = TrainState(col, buf, params, target, opt_state, key, ts.env_steps + n_envs, n_upd,
                         ts.norm_ready | ready)
         return ts, st
@@ -625,7 +638,8 @@ def make_dqn_env(cfg):
 
 def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks: int | None = None,
               print_fn=print, env=None, suite: pol.PolicySuite | None = None, pool=None) -> dict:
-    """Trains (or resumes) until `total_env_steps`; returns the last progress record.
+    """Trains (or resumes) until `total_env_steps` (or `max_chunks` chunks); returns the last
+    progress record of this session, {} when it saved none (the run had already reached the total).
 
     `env` (default: mixed tracks with the one-hot), `suite` (default: the `cfg.init` policies
     under `runs`, missing ones replaced by `stand_in`) and `pool` (the episode starts; default:
@@ -642,7 +656,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
     fns = make_train_fns(cfg, env, suite.apply)
     logger = train_lib.Logger(run_dir)
     ckpt = train_lib.latest_checkpoint(run_dir)
-    step, wall_s, n_updates, norm_ready = 0, 0.0, 0, False
+    step, wall_s, n_updates, norm_ready, setup_total = 0, 0.0, 0, False, 0.0
     own_pool = pool is None
     if own_pool:
         pool = fns.reset_pool(jax.random.PRNGKey(cfg.seed + 1))
@@ -652,6 +666,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
         prog = json.loads((ckpt / "progress.json").read_text())
         step, wall_s = int(prog["step"]), float(prog["wall_s"])
         n_updates, norm_ready = int(prog["n_updates"]), bool(prog["norm_ready"])
+        setup_total = prog.get("setup_s_total")  # None: an older checkpoint, the sum is unknown
         ts = ts._replace(params=_as_template(saved["online"], ts.params),
                          target=_as_template(saved["target"], ts.target),
                          opt_state=_opt_from_dict(saved["opt"], ts.opt_state),
@@ -667,7 +682,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
     progress, chunks, last = {}, 0, {}
     setup_s = time.perf_counter() - t_session  # env, policies, pool: counted in the first chunk
     while step < cfg.total_env_steps and (max_chunks is None or chunks < max_chunks):
-        t_chunk = time.perf_counter()
+        t_chunk, step0 = time.perf_counter(), step
         if own_pool and cfg.init == "random" and chunks > 0:  # new joint draws (stand: no need)
             pool = fns.reset_pool(jax.random.PRNGKey(cfg.seed + 1 + step))
         for _ in range(calls_per_chunk):
@@ -692,11 +707,14 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
                               if not (isinstance(v, float) and math.isnan(v))})
         chunk_s = time.perf_counter() - t_chunk
         wall_s += chunk_s + (setup_s if chunks == 0 else 0.0)
+        if chunks == 0 and setup_total is not None:
+            setup_total += setup_s
         n_updates, norm_ready = int(ts.n_updates), bool(ts.norm_ready)
-        progress = {"step": step, "wall_s": wall_s, "chunk_s": chunk_s,
-                    "session_setup_s": setup_s if chunks == 0 else 0.0, "epsilon": last["epsilon"],
+        progress = {"step": step, "total_env_steps": cfg.total_env_steps, "wall_s": wall_s,
+                    "chunk_s": chunk_s, "session_setup_s": setup_s if chunks == 0 else 0.0,
+                    "setup_s_total": setup_total, "epsilon": last["epsilon"],
                     "n_updates": n_updates, "norm_ready": norm_ready,
-                    "env_steps_per_s": per_call * calls_per_chunk / chunk_s, "last": last,
+                    "env_steps_per_s": (step - step0) / chunk_s, "last": last,
                     "hm_size": fns.hm_size, "q_input_size": fns.in_size, "init": cfg.init,
                     "stand_in": stand_in, "policies": list(suite.sources),
                     "oracle_bonus": cfg.oracle_bonus, "device": str(jax.devices()[0]),

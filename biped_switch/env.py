@@ -386,10 +386,8 @@ class BipedEnv(Env):
         x = feat["com"][0]
         span = jnp.maximum(info["finish_x"] - info["start_x"], 1e-6)
         passed = jnp.sum((info["art_x1"] < x) & (info["art_kind"] >= 0))
-        # On a fall, blame the artifact whose [start - detect range, end + finish_after] holds x.
-        near = ((info["art_x0"] - self.cfg.detect_range_m <= x)
-                & (x <= info["art_x1"] + self.terrain_cfg.finish_after_m) & (info["art_kind"] >= 0))
-        blamed = jnp.where(jnp.any(near), info["art_kind"][jnp.argmax(near)], -1)
+        blamed = blame_kind(x, info["art_x0"], info["art_x1"], info["art_kind"],
+                            self.cfg.detect_range_m, self.terrain_cfg.finish_after_m)
         return {
             "distance_m": (x - info["start_x"]).astype(jnp.float32),
             "progress_frac": jnp.clip((x - info["start_x"]) / span, 0.0, 1.0).astype(jnp.float32),
@@ -399,6 +397,19 @@ class BipedEnv(Env):
             "fail_kind": jnp.where(fell > 0, blamed, -1).astype(jnp.float32),
             "detected_kind": feat["detect"]["kind"].astype(jnp.float32),
         }
+
+
+def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: float):
+    """Kind of the artifact a fall at `x` [m] is blamed on, or -1 (flat ground).
+
+    The latest artifact whose detection zone has begun (start - `detect_range_m` <= x) is blamed
+    while x is within `after_m` past its end. The flats between artifacts are shorter than
+    `detect_range_m + after_m`, so in the overlap the next artifact wins: a fall there comes after
+    the detector names it and the switch to its policy, as Table II's failure columns need.
+    Artifacts are sorted by x; padding (kind -1) sits at `terrain.FAR_X_M`."""
+    reached = (art_x0 - detect_range_m <= x) & (art_kind >= 0)
+    i = jnp.maximum(jnp.sum(reached) - 1, 0)
+    return jnp.where(jnp.any(reached) & (x <= art_x1[i] + after_m), art_kind[i], -1)
 
 
 def make_env(kind: str = "walk", init: str = "stand", curriculum_cfg=None, terrain_cfg=None,

@@ -32,6 +32,7 @@ import math
 import pathlib
 import sys
 import time
+import warnings
 
 import jax
 import numpy as np
@@ -74,11 +75,13 @@ def episode_table(result: dict) -> dict:
     d, d_lo, d_hi = mean_ci(dist)
     s_lo, s_hi = wilson_ci(float(succ.sum()), n)
     fail = np.asarray(result["fail_kind"])
+    kinds = ("jumps", "gaps", "stairs")
     return {"n": n, "distance_pct": d, "distance_ci": [d_lo, d_hi],
             "success_pct": 100.0 * succ.mean(), "success_ci": [100 * s_lo, 100 * s_hi],
             "fell_pct": 100.0 * float((np.asarray(result["fell"]) > 0.5).mean()),
-            "fail_on": {k: 100.0 * float((fail == i).mean())
-                        for i, k in enumerate(("jumps", "gaps", "stairs"))}}
+            "fail_on": {k: 100.0 * float((fail == i).mean()) for i, k in enumerate(kinds)},
+            "fail_ci": {k: [100 * v for v in wilson_ci(float((fail == i).sum()), n)]
+                        for i, k in enumerate(kinds)}}
 
 
 def find_policy(policy: str, init: str, runs: pathlib.Path) -> pathlib.Path | None:
@@ -110,8 +113,11 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
 
 def _dist_success_cells(r: dict) -> str:
     """The "% distance (CI) | % success (CI)" cells of a Table I or II row."""
-    return (f"{r['distance_pct']:.1f} ({r['distance_ci'][0]:.1f}-{r['distance_ci'][1]:.1f}) | "
-            f"{r['success_pct']:.1f} ({r['success_ci'][0]:.1f}-{r['success_ci'][1]:.1f})")
+    return f"{_pct_ci(r['distance_pct'], r['distance_ci'])} | {_pct_ci(r['success_pct'], r['success_ci'])}"
+
+
+def _pct_ci(v: float, ci) -> str:
+    return f"{v:.1f} ({ci[0]:.1f}-{ci[1]:.1f})"
 
 
 def table1_markdown(rows: list[dict]) -> str:
@@ -197,6 +203,23 @@ def _run_batches(run, trials: int, batch: int, seed: int) -> dict:
     return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
 
 
+def multi_env(init: str, trials: int, n_artifacts: int = 7, **overrides):
+    """Table II's env: `mixed` tracks MULTI_TRACK_SEED + i (trial i), `n_artifacts` per track."""
+    from biped_switch.config import default_terrain_config
+
+    tcfg = default_terrain_config()
+    tcfg.n_artifacts = n_artifacts
+    return env_lib.make_env("mixed", init, terrain_cfg=tcfg, n_tracks=trials, seed=MULTI_TRACK_SEED,
+                            **overrides)
+
+
+def trial_track(setup, trial: int):
+    """The terrain.Track of a trial of `setup` (for plots)."""
+    from biped_switch import terrain
+
+    return terrain.generate_track(MULTI_TRACK_SEED + trial, "mixed", 1.0, setup.env.terrain_cfg)
+
+
 def _estimators(init: str, model_dir: str):
     from biped_switch import estimator as est_lib
 
@@ -209,13 +232,13 @@ class MultiSetup:
 
     def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
                  est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
-                 guide_scale: float = 0.0):
+                 guide_scale: float = 0.0, n_artifacts: int = 7):
         from biped_switch import policies as pol
         from biped_switch import sweep
         from biped_switch import switching as sw
 
         self.init = init
-        self.env = env_lib.make_env("mixed", init, n_tracks=trials, seed=MULTI_TRACK_SEED)
+        self.env = multi_env(init, trials, n_artifacts)
         self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in)
         self.est_apply, self.est_params, self.est_meta = None, None, None
         if need_estimators:
@@ -250,7 +273,7 @@ class BaselineSetup:
     always picks it."""
 
     def __init__(self, method: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
-                 dqn_dir=None, guide_scale: float = 0.0):
+                 dqn_dir=None, guide_scale: float = 0.0, n_artifacts: int = 7):
         from biped_switch import dqn as dqn_lib
         from biped_switch import policies as pol
         from biped_switch.rollout import over_devices
@@ -262,14 +285,20 @@ class BaselineSetup:
             if run_dir is None:
                 raise FileNotFoundError(f"no stand-init DQN checkpoint under {dqn_dir or runs}/ or "
                                         f"{BASELINE_DIR}/ (make train-dqn)")
-            self.env = env_lib.make_env("mixed", "stand", detector_one_hot=True, n_tracks=trials,
-                                        seed=MULTI_TRACK_SEED)
+            self.env = multi_env("stand", trials, n_artifacts, detector_one_hot=True)
             self.suite = pol.load_suite("stand", dqn_lib._suite_env(self.env), runs, stand_in=stand_in)
             q_apply, self.q_params = dqn_lib.load_dqn(run_dir)
-            self.sources = self.suite.sources + (
-                f"selector: {train_lib.latest_checkpoint(run_dir)}",)
+            ckpt = train_lib.latest_checkpoint(run_dir)
+            self.sources = self.suite.sources + (f"selector: {ckpt}",)
+            trained_with = json.loads((ckpt / "progress.json").read_text()).get("policies")
+            if trained_with is not None and list(trained_with) != list(self.suite.sources):
+                # a selector's Q-values are only meaningful for the policies it chose among
+                warnings.warn(f"the DQN selector {ckpt} was trained with the policies {trained_with}, "
+                              f"not the ones evaluated now {list(self.suite.sources)}; retrain it "
+                              f"(make train-dqn) for a Table II row", stacklevel=2)
+                self.sources += (f"MISMATCH: selector trained with {trained_with}",)
         else:
-            self.env = env_lib.make_env("mixed", "stand", n_tracks=trials, seed=MULTI_TRACK_SEED)
+            self.env = multi_env("stand", trials, n_artifacts)
             self.suite = pol.load_suite("stand", self.env, runs, names=("mixed",))
             self.q_params = jax.numpy.zeros(())
 
@@ -292,7 +321,8 @@ class BaselineSetup:
 
 def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
                    stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
-                   print_fn=print, guide_scale: float = 0.0, dqn_dir=None) -> tuple[list, dict]:
+                   print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
+                   n_artifacts: int = 7) -> tuple[list, dict]:
     """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
     and per baseline ("dqn", "end_to_end"). `wall_s` of a row includes its setup and compiles."""
     setups, rows = {}, []
@@ -301,14 +331,15 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         init = "random" if method == "estimator_no_overlap" else "stand"
         if method in BASELINES:
             setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
-                                           guide_scale)
+                                           guide_scale, n_artifacts)
             merged, sources = setups[method].evaluate(trials, seed), setups[method].sources
         else:
             if init not in setups:
-                need_est = any(m.startswith("estimator") for m in methods)
+                need_est = ("estimator_no_overlap" if init == "random" else "estimator") in methods
                 setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
                                           lookup_dir, need_est,
-                                          "lookup" in methods and init == "stand", guide_scale)
+                                          "lookup" in methods and init == "stand", guide_scale,
+                                          n_artifacts)
             rule = "estimator" if method == "estimator_no_overlap" else method
             merged, sources = setups[init].evaluate(rule, trials, seed), setups[init].suite.sources
         row = episode_table(merged)
@@ -322,15 +353,15 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
 
 
 def table2_markdown(rows: list[dict]) -> str:
-    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail | "
-             "% jump fail | % stair fail | paper (dist. / success / gap / jump / stair) |",
+    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail (CI) | "
+             "% jump fail (CI) | % stair fail (CI) | paper (dist. / success / gap / jump / stair) |",
              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         paper = PAPER_TABLE2.get(r["method"])
         f = r["fail_on"]
         lines.append(
             f"| {r['method']} | {r['n']} | {_dist_success_cells(r)} | "
-            f"{f['gaps']:.1f} | {f['jumps']:.1f} | {f['stairs']:.1f} | "
+            + " | ".join(_pct_ci(f[k], r["fail_ci"][k]) for k in ("gaps", "jumps", "stairs")) + " | "
             + (" / ".join(f"{v}" for v in paper) if paper else "-") + " |")
     return "\n".join(lines)
 
@@ -419,6 +450,7 @@ def main(argv=None) -> int:
     m.add_argument("--trials", type=int, default=2500)
     m.add_argument("--batch", type=int, default=250, help="episodes per jitted rollout")
     m.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
+    m.add_argument("--n-artifacts", type=int, default=7, help="artifacts per track (paper: 7)")
     m.add_argument("--seed", type=int, default=0)
     m.add_argument("--runs", default="runs")
     m.add_argument("--estimators", default="models/estimators")
@@ -496,12 +528,26 @@ def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list
 PAPER_TABLE3_H = {"ours": 20.0, "dqn": 25.0, "end_to_end": 34.0}  # hours, CPU (Tidd et al.)
 
 
-def _run_wall_s(ckpt: pathlib.Path | None):
-    """(wall seconds, device, step) recorded with a checkpoint (a run's latest), or None."""
+def _run_record(ckpt: pathlib.Path | None) -> dict | None:
+    """What a run's latest checkpoint recorded for Table III: wall time, device, step, and the
+    reasons (if any) its hours are not those of a finished, real training run."""
     if ckpt is None:
         return None
     prog = json.loads((ckpt / "progress.json").read_text())
-    return float(prog["wall_s"]), prog.get("device", "?"), int(prog.get("step", 0))
+    step, notes = int(prog.get("step", 0)), []
+    total = prog.get("total_steps", prog.get("total_env_steps"))
+    if total is not None and step < int(total):
+        notes.append(f"{ckpt.parent.parent.name} at step {step:,} of {int(total):,}")
+    c = prog.get("curriculum")
+    if c is not None and (c["guide_scale"] > 1e-6 or c["difficulty"] < 1 - 1e-6):
+        notes.append(f"{ckpt.parent.parent.name} curriculum unfinished ({c['stage_name']} "
+                     f"d={c['difficulty']:.1f} guide={c['guide_scale']:.1f})")
+    if prog.get("stand_in"):
+        notes.append(f"{ckpt.parent.parent.name} chose among stand-ins ({prog['stand_in']})")
+    if "pipeline_check" in ckpt.parts:
+        notes.append(f"{ckpt.parent.parent.name} is a pipeline check")
+    return {"wall_s": float(prog["wall_s"]), "step": step, "notes": notes,
+            "device": f"{prog.get('device', '?')} x{prog.get('n_devices', 1)}"}
 
 
 def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand") -> dict:
@@ -509,23 +555,28 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
 
     ours: one new policy (the mean training wall time of the artifact policies) plus, for each
     of the three policies' switch estimators, its sweep and its training; DQN: the new policy
-    plus retraining the selector; end-to-end: retraining the single policy. A missing log leaves
-    the row's total empty and says what is missing."""
+    plus retraining the selector (the paper's 25 h = 17 h policy + 8 h selector); end-to-end:
+    retraining the single policy. A missing log leaves the row's total empty and says what is
+    missing; a row built from unfinished, stand-in or pipeline-check runs says so in `status`."""
     rows, missing = [], []
-    pol_s = {}
+    pol_r = {}
     for p in ("jumps", "gaps", "stairs"):
-        r = _run_wall_s(find_policy(p, init, runs))
+        r = _run_record(find_policy(p, init, runs))
         if r is None:
             missing.append(f"policy {p}_{init}")
         else:
-            pol_s[p] = r
-    policy_h = np.mean([v[0] for v in pol_s.values()]) / 3600 if pol_s else None
-    sweep_h, est_h = {}, {}
+            pol_r[p] = r
+    policy_h = np.mean([v["wall_s"] for v in pol_r.values()]) / 3600 if pol_r else None
+    pol_notes = [n for v in pol_r.values() for n in v["notes"]]
+    sweep_h, est_h, data_notes = {}, {}, []
     lookup = results / "lookup" / f"lookup_{init}.json"
-    sweeps = json.loads(lookup.read_text())["meta"].get("sweeps", {}) if lookup.exists() else {}
+    lmeta = json.loads(lookup.read_text())["meta"] if lookup.exists() else {}
+    sweeps = lmeta.get("sweeps", {})
     for k in ("jumps", "gaps", "stairs"):
         if k in sweeps:
             sweep_h[k] = sweeps[k]["wall_s"] / 3600
+            if any("stand-in" in str(v) for v in lmeta.get("policies", {}).get(k, {}).values()):
+                data_notes.append(f"sweep {k} ran stand-in policies")
         else:
             missing.append(f"sweep {init}/{k}")
         e = results / "estimators" / f"{init}_{k}.json"
@@ -533,36 +584,50 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
             est_h[k] = json.loads(e.read_text())["metrics"]["train_s"] / 3600
         else:
             missing.append(f"estimator {init}_{k}")
+    if "PIPELINE_CHECK" in lmeta:
+        data_notes.append(f"lookup/sweeps: {lmeta['PIPELINE_CHECK']}")
     ours_parts = {"new policy": policy_h, **{f"sweep {k}": v for k, v in sweep_h.items()},
                   **{f"estimator {k}": v for k, v in est_h.items()}}
     ours_ok = policy_h is not None and len(sweep_h) == 3 and len(est_h) == 3
-    devices = sorted({v[1] for v in pol_s.values()})
+    devices = sorted({v["device"] for v in pol_r.values()})
+
+    def status(notes, ok):
+        return "not measured" if not ok else ("; ".join(notes) if notes else "complete")
+
     rows.append({"method": "ours", "hours": sum(ours_parts.values()) if ours_ok else None,
                  "parts": ours_parts, "device": ", ".join(devices) or "?",
+                 "status": status(pol_notes + data_notes, ours_ok),
                  "paper_hours": PAPER_TABLE3_H["ours"]})
     dqn_dir = find_dqn(runs, init)
-    dqn = _run_wall_s(train_lib.latest_checkpoint(dqn_dir) if dqn_dir else None)
+    dqn = _run_record(train_lib.latest_checkpoint(dqn_dir) if dqn_dir else None)
     if dqn is None:
         missing.append(f"DQN run dqn_{init}")
-    rows.append({"method": "dqn", "hours": policy_h + dqn[0] / 3600 if dqn and policy_h else None,
-                 "parts": {"new policy": policy_h, "selector": dqn[0] / 3600 if dqn else None},
-                 "device": dqn[1] if dqn else "?", "paper_hours": PAPER_TABLE3_H["dqn"]})
-    e2e = _run_wall_s(find_policy("mixed", init, runs))
+    dqn_ok = dqn is not None and policy_h is not None
+    rows.append({"method": "dqn", "hours": policy_h + dqn["wall_s"] / 3600 if dqn_ok else None,
+                 "parts": {"new policy": policy_h, "selector": dqn["wall_s"] / 3600 if dqn else None},
+                 "device": dqn["device"] if dqn else "?",
+                 "status": status(pol_notes + (dqn["notes"] if dqn else []), dqn_ok),
+                 "paper_hours": PAPER_TABLE3_H["dqn"]})
+    e2e = _run_record(find_policy("mixed", init, runs))
     if e2e is None:
         missing.append(f"end-to-end run mixed_{init}")
-    rows.append({"method": "end_to_end", "hours": e2e[0] / 3600 if e2e else None,
-                 "parts": {"policy": e2e[0] / 3600 if e2e else None},
-                 "device": e2e[1] if e2e else "?", "paper_hours": PAPER_TABLE3_H["end_to_end"]})
-    return {"rows": rows, "missing": missing, "init": init,
+    rows.append({"method": "end_to_end", "hours": e2e["wall_s"] / 3600 if e2e else None,
+                 "parts": {"policy": e2e["wall_s"] / 3600 if e2e else None},
+                 "device": e2e["device"] if e2e else "?",
+                 "status": status(e2e["notes"] if e2e else [], e2e is not None),
+                 "paper_hours": PAPER_TABLE3_H["end_to_end"]})
+    return {"rows": rows, "missing": missing, "init": init, "runs": str(runs), "results": str(results),
             "notes": "hours of wall-clock time read from progress.json / sweep and estimator logs"}
 
 
 def table3_markdown(doc: dict) -> str:
-    lines = ["| method | hours (ours) | parts [h] | device | paper [h, CPU] |", "|---|---|---|---|---|"]
+    lines = ["| method | hours (ours) | parts [h] | device | status | paper [h, CPU] |",
+             "|---|---|---|---|---|---|"]
     for r in doc["rows"]:
         parts = ", ".join(f"{k} {v:.2f}" if v is not None else f"{k} -" for k, v in r["parts"].items())
         h = f"{r['hours']:.2f}" if r["hours"] is not None else "not measured"
-        lines.append(f"| {r['method']} | {h} | {parts} | {r['device']} | {r['paper_hours']:.0f} |")
+        lines.append(f"| {r['method']} | {h} | {parts} | {r['device']} | {r.get('status', '?')} | "
+                     f"{r['paper_hours']:.0f} |")
     if doc["missing"]:
         lines.append("")
         lines.append("missing logs: " + "; ".join(doc["missing"]))
@@ -570,10 +635,9 @@ def table3_markdown(doc: dict) -> str:
 
 
 def _main_multi(a, p) -> int:
-    from biped_switch import terrain
-
-    if a.trials < 1 or a.batch < 1:
-        p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
+    if a.trials < 1 or a.batch < 1 or a.n_artifacts < 1:
+        p.error(f"--trials, --batch and --n-artifacts must be >= 1 (got {a.trials}, {a.batch}, "
+                f"{a.n_artifacts})")
     batch = min(a.batch, a.trials)
     t0 = time.perf_counter()
     a.methods, skipped = available_methods(a.methods, a.runs, a.estimators, a.lookup, a.dqn,
@@ -588,12 +652,14 @@ def _main_multi(a, p) -> int:
     rows, setups = evaluate_multi(a.methods, a.trials, batch, a.horizon_s, a.seed, a.runs,
                                   a.stand_in, a.estimators, a.lookup,
                                   print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale,
-                                  dqn_dir=a.dqn)
+                                  dqn_dir=a.dqn, n_artifacts=a.n_artifacts)
     out = _write_table(a.out, "table2", table2_markdown(rows),
-                       ["method", "init", "trials", "gap_fail_pct", "jump_fail_pct",
-                        "stair_fail_pct", "switches_per_trial", "wall_s"],
-                       [[r["method"], r["init"], r["n"], r["fail_on"]["gaps"], r["fail_on"]["jumps"],
-                         r["fail_on"]["stairs"], r["switches_per_trial"], r["wall_s"]] for r in rows],
+                       ["method", "init", "trials"]
+                       + [f"{k}_fail_{c}" for k in ("gap", "jump", "stair") for c in ("pct", "lo", "hi")]
+                       + ["switches_per_trial", "wall_s"],
+                       [[r["method"], r["init"], r["n"]]
+                        + [v for k in ("gaps", "jumps", "stairs") for v in (r["fail_on"][k], *r["fail_ci"][k])]
+                        + [r["switches_per_trial"], r["wall_s"]] for r in rows],
                        rows)
     wall = time.perf_counter() - t0
     (out / "table2.json").write_text(json.dumps(
@@ -603,11 +669,12 @@ def _main_multi(a, p) -> int:
     if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
         s = setups["stand"]
         rec = trace_trial(s, "estimator", a.fig5_trial % a.trials, a.seed)
-        track = terrain.generate_track(MULTI_TRACK_SEED + a.fig5_trial % a.trials, "mixed", 1.0)
+        track = trial_track(s, a.fig5_trial % a.trials)
         path = out / f"fig5_trial{a.fig5_trial}.png"
         plot_trial(rec, track, path, f"estimator switching, trial {a.fig5_trial}")
         np.savez_compressed(out / f"fig5_trial{a.fig5_trial}.npz", **rec,
-                            track_seed=MULTI_TRACK_SEED + a.fig5_trial % a.trials)
+                            track_seed=MULTI_TRACK_SEED + a.fig5_trial % a.trials,
+                            n_artifacts=a.n_artifacts)
         print(f"wrote {path}")
     print(json.dumps({"table2_wall_s": round(wall, 1), "trials": a.trials,
                       "methods": len(a.methods)}))

@@ -44,6 +44,17 @@ def record(env, act, seconds: float, seed: int = 0, track_id: int = 0):
     return np.stack(qpos), np.asarray(state.info["boxes"]), {k: float(v) for k, v in state.metrics.items()}
 
 
+def track_boxes(boxes: np.ndarray) -> np.ndarray:
+    """The rows of an env's box slots that hold terrain. Padding rows are parked at x = 1e6 or far
+    below; left in, they set the model's extent, hence the near clipping plane, to kilometres and
+    every frame renders as empty sky."""
+    from biped_switch import terrain
+
+    boxes = np.asarray(boxes)
+    keep = (np.abs(boxes[:, 0]) < 0.5 * terrain.FAR_X_M) & (boxes[:, 2] > terrain.PARK_Z_M + 1.0)
+    return boxes[keep]
+
+
 def frames(qpos: np.ndarray, boxes: np.ndarray, width: int = 480, height: int = 320,
            every: int = 2) -> list[np.ndarray]:
     """RGB frames of a qpos trajectory on a CPU model holding `boxes`, side-on tracking camera.
@@ -52,7 +63,9 @@ def frames(qpos: np.ndarray, boxes: np.ndarray, width: int = 480, height: int = 
 
     from biped_switch.model import compile_mj_model
 
-    m = compile_mj_model(None, boxes)
+    m = compile_mj_model(None, track_boxes(boxes))
+    # The near clipping plane is znear x the model's extent: keep it at 5 cm whatever the extent.
+    m.vis.map.znear = 0.05 / max(m.stat.extent, 1e-6)
     d = mujoco.MjData(m)
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE

@@ -5,8 +5,10 @@
 For a target policy i and every other policy j, pi_j walks up to a single artifact of kind i; the
 artifact is detected 0.9 m ahead and pi_i takes over at a distance U(0, 0.9) m before it. The five
 observations (robot state + heightmap) at control steps t-2 .. t+2 around the switch step t form
-one sample, labelled 1 when the robot then gets past the artifact and makes `steps_past` (2) foot
-touchdowns beyond its end without falling, else 0 (a fall, or neither within `horizon_s`).
+one sample, labelled 1 when the robot then makes `steps_past` (2) steps with the foot centre past
+the artifact's end without falling (a step: a landing of the other foot than the last step's, so
+two steps need each foot; see `count_steps_past`), or reaches the finish line, else 0 (a fall, or
+neither within `horizon_s`).
 Episodes that fall before the switch, or never reach the switch point, give no sample. Sources
 cycle j over the other three policies, so every pair gets a third of the samples.
 
@@ -21,6 +23,7 @@ paper's Fig. 4b) go to experiments/results/lookup/.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import pathlib
 import sys
@@ -51,10 +54,66 @@ def touchdowns(contact, contact_prev) -> jax.Array:
     return now & ~before
 
 
-def count_steps_past(count, contact, contact_prev, soles_x, art_end_x):
-    """Touchdown count updated with this step's landings of feet whose centre is past the end."""
+LEFT, RIGHT, NO_FOOT = 0, 1, -1  # `Labelling.last_foot` values
+
+
+def count_steps_past(steps, last_foot, contact, contact_prev, soles_x, art_end_x):
+    """(steps, last_foot) updated with this step's landings of feet whose centre is past the end.
+
+    A step is a landing of the other foot than the one that made the last step there, so one foot
+    landing twice (a bounce, a shuffle) is one step and `steps >= 2` means both feet have landed
+    past the end. Both feet landing together (after a hop) is one step; either foot's next
+    landing is then the second."""
     feet_x = soles_x.reshape(2, 4).mean(axis=1)
-    return count + jnp.sum(touchdowns(contact, contact_prev) & (feet_x > art_end_x))
+    land = touchdowns(contact, contact_prev) & (feet_x > art_end_x)
+    both = land[0] & land[1]
+    new = both | (land[0] & (last_foot != LEFT)) | (land[1] & (last_foot != RIGHT))
+    last = jnp.where(both, NO_FOOT, jnp.where(land[0], LEFT, jnp.where(land[1], RIGHT, last_foot)))
+    return steps + new.astype(jnp.int32), last
+
+
+class Labelling(NamedTuple):
+    """Per-env label state of a switch episode (leading batch axes allowed)."""
+
+    steps: jax.Array  # int32: steps past the artifact's end after the switch (count_steps_past)
+    last_foot: jax.Array  # int32: LEFT / RIGHT / NO_FOOT, the foot of the last step there
+    ended: jax.Array  # bool: fell, labelled, or the env's episode is over: the record is final
+    label: jax.Array  # bool
+    fell: jax.Array  # bool
+    fell_before: jax.Array  # bool: fell before the switch (no sample)
+
+
+def labelling_init(shape=()) -> Labelling:
+    z = jnp.zeros(shape, jnp.int32)
+    f = jnp.zeros(shape, bool)
+    return Labelling(z, z + NO_FOOT, f, f, f, f)
+
+
+def is_live(lab: Labelling, t, horizon) -> jax.Array:
+    """The episode still runs at control step t: not ended and within the horizon (a timeout
+    leaves the label 0)."""
+    return ~lab.ended & (t < horizon)
+
+
+def label_step(lab: Labelling, live, switched_before, switched, contact, contact_prev, soles_x,
+               art_end_x, fell, success, done, steps_past: int) -> Labelling:
+    """One control step of the label rule for one env.
+
+    `contact`, `contact_prev`, `soles_x` are this step's (the observation's) sole flags and sole x
+    [m]; `fell`, `success`, `done` (bool) come from the env step taken from it. Landings count
+    from the step after the switch (`switched_before`). Label 1 once `steps_past` steps are made
+    past the end (or the finish is reached) and that step's env step does not fall; a fall first,
+    the env's episode ending or the horizon leave 0. Once labelled the record is final."""
+    steps, last = count_steps_past(lab.steps, lab.last_foot, contact, contact_prev, soles_x,
+                                   art_end_x)
+    counting = live & switched_before
+    steps = jnp.where(counting, steps, lab.steps)
+    last = jnp.where(counting, last, lab.last_foot)
+    fell = live & fell
+    label = live & switched & ((steps >= steps_past) | success) & ~fell
+    ended = lab.ended | fell | label | (live & done)
+    return Labelling(steps, last, ended, lab.label | label, lab.fell | fell,
+                     lab.fell_before | (fell & ~switched))
 
 
 class Window(NamedTuple):
@@ -91,11 +150,14 @@ def window_fill(w: Window) -> jax.Array:
 
 # ----------------------------------------------------------------------- the rollout
 def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, switch_max_m: float,
-                  steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0) -> dict:
+                  steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0,
+                  end_offset_m: float = 0.0) -> dict:
     """A batch of switch episodes on single-artifact tracks (one env per track id).
 
     `sources` (B,) policy index acting before the switch, `target` the index switched to;
-    `guide_scale` > 0 turns the scripted gait's guide forces on (tests and diagnostics only)."""
+    `guide_scale` > 0 turns the scripted gait's guide forces on and `end_offset_m` moves the line
+    past which steps count from the artifact's end (tests only: the guided robot never crosses an
+    artifact, so only a line moved back gives it labels of 1)."""
     n = track_ids.shape[0]
     k_reset, k_u = jax.random.split(rng)
     state = jax.vmap(lambda k, i: env.reset(k, track_id=i, guide_scale=guide_scale))(
@@ -103,29 +165,28 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     switch_at = jax.random.uniform(k_u, (n,), maxval=switch_max_m)
     f = jnp.zeros(n)
     carry = {"state": state, "active": sources.astype(jnp.int32), "switched": f > 1,
-             "dist_m": jnp.full(n, jnp.nan), "count": jnp.zeros(n, jnp.int32), "ended": f > 1,
-             "fell": f > 1, "fell_before": f > 1, "label": f > 1, "steps": jnp.zeros(n, jnp.int32),
-             "win": jax.vmap(window_init)(state.obs), "t": jnp.zeros((), jnp.int32)}
+             "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
+             "steps": jnp.zeros(n, jnp.int32), "win": jax.vmap(window_init)(state.obs),
+             "t": jnp.zeros((), jnp.int32)}
+    label_steps = jax.vmap(functools.partial(label_step, steps_past=steps_past))
 
     def step(c, _):
         state = c["state"]
         si = jax.vmap(env.switch_inputs)(state)
         det = si["detect"]
-        live = ~c["ended"] & (c["t"] < horizon)  # the last chunk may run past the horizon
+        live = is_live(c["lab"], c["t"], horizon)  # the last chunk may run past the horizon
         now = live & ~c["switched"] & (det["kind"] >= 0) & (det["dist_m"] <= switch_at)
         active = jnp.where(now, target, c["active"])
         dist_m = jnp.where(now, det["dist_m"], c["dist_m"])
         switched = c["switched"] | now
         win = jax.vmap(window_update)(c["win"], state.obs, now, c["switched"] & live)
-        # touchdowns counted on the observation's own contact flags (this step vs the last)
-        art_end = state.info["art_x1"][:, 0]
-        count = jnp.where(c["switched"] & live, jax.vmap(count_steps_past)(
-            c["count"], si["contact"], si["contact_prev"], si["soles"][..., 0], art_end), c["count"])
         action = pol.select(pol.all_actions(apply, params, state.obs), active)
         nxt = jax.vmap(env.step)(state, action)
-        fell = live & (nxt.metrics["fell"] > 0.5)
-        label = live & switched & ((count >= steps_past) | (nxt.metrics["success"] > 0.5)) & ~fell
-        ended = c["ended"] | fell | label | (live & (nxt.done > 0.5))
+        # touchdowns counted on the observation's own contact flags (this step vs the last)
+        lab = label_steps(c["lab"], live, c["switched"], switched, si["contact"],
+                          si["contact_prev"], si["soles"][..., 0],
+                          state.info["art_x1"][:, 0] + end_offset_m,
+                          nxt.metrics["fell"] > 0.5, nxt.metrics["success"] > 0.5, nxt.done > 0.5)
         # Ended episodes are frozen. Not needed for the record (it reads only live steps), but
         # it keeps the compiled step bit-identical to the env's own: the window test compares
         # observations to 1e-4 after ~200 chaotic contact steps, and a regrouped program drifts.
@@ -133,20 +194,21 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
         state = jax.tree.map(
             lambda o, n_: jnp.where(keep.reshape((-1,) + (1,) * (n_.ndim - 1)), o, n_), state, nxt)
         return {"state": state, "active": active, "switched": switched, "dist_m": dist_m,
-                "count": count, "ended": ended, "fell": c["fell"] | fell,
-                "fell_before": c["fell_before"] | (fell & ~switched), "label": c["label"] | label,
-                "steps": c["steps"] + live.astype(jnp.int32), "win": win, "t": c["t"] + 1}, None
+                "lab": lab, "steps": c["steps"] + live.astype(jnp.int32), "win": win,
+                "t": c["t"] + 1}, None
 
     def run_chunk(c):
         return jax.lax.scan(step, c, None, length=chunk)[0]
 
-    c = jax.lax.while_loop(lambda c: (c["t"] < horizon) & jnp.any(~c["ended"]), run_chunk, carry)
-    # the window is complete two steps after the switch; a label needs >= 2 touchdowns, so later
-    valid = c["switched"] & ~c["fell_before"]
-    return {"window": jax.vmap(window_fill)(c["win"]), "label": c["label"], "valid": valid,
+    c = jax.lax.while_loop(lambda c: (c["t"] < horizon) & jnp.any(~c["lab"].ended), run_chunk,
+                           carry)
+    # the window is complete two steps after the switch; a label needs >= 2 steps, so later
+    lab = c["lab"]
+    valid = c["switched"] & ~lab.fell_before
+    return {"window": jax.vmap(window_fill)(c["win"]), "label": lab.label, "valid": valid,
             "switch_dist_m": c["dist_m"], "switch_at_m": switch_at, "source": sources,
-            "track_id": track_ids, "fell": c["fell"],
-            "steps": c["steps"]}
+            "track_id": track_ids, "fell": lab.fell, "steps": c["steps"],
+            "steps_past": lab.steps}
 
 
 def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0):
@@ -238,10 +300,60 @@ def _split(window: np.ndarray):
     return state, hm
 
 
+def _part(out: dict, first_sample: int, window) -> tuple[dict, int]:
+    """A batch's valid samples as N_WINDOW rows each (the estimator's fields), and their count."""
+    v = np.asarray(out["valid"])
+    state, hm = _split(np.asarray(out["window"])[v])
+    n_s = int(v.sum())
+    k = np.repeat(np.arange(n_s), N_WINDOW)
+
+    def rows(x, dtype):
+        return np.repeat(np.asarray(x)[v], N_WINDOW).astype(dtype)
+
+    return {"state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
+            "label": rows(out["label"], np.int8),
+            "sample": (first_sample + np.flatnonzero(v)[k]).astype(np.int32),
+            "offset": np.tile(np.asarray(window, np.int8), n_s),
+            "source": rows(out["source"], np.int8),
+            "switch_dist_m": rows(out["switch_dist_m"], np.float32),
+            "track_id": rows(out["track_id"], np.int32)}, n_s
+
+
+# Every session adding parts to a sweep must share these; of the config only the keys below may
+# differ (more points extend a sweep; the lookup bin applies to the merged data only).
+RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed")
+PROGRESS_CONFIG_KEYS = ("n_points", "lookup_bin_m")
+
+
+def resume_key(meta: dict) -> dict:
+    """The part of a sweep's meta (as JSON) that the parts already made depend on."""
+    key = json.loads(json.dumps({k: meta.get(k) for k in RESUME_KEYS}, default=str))
+    key["config"] = {k: v for k, v in (key["config"] or {}).items()
+                     if k not in PROGRESS_CONFIG_KEYS}
+    return key
+
+
+class SweepRun(NamedTuple):
+    """One run_sweep call: the merged data, this session's own figures and the sweep's total."""
+
+    path: pathlib.Path  # the merged npz
+    points_new: int  # points made by this session
+    loop_s: float  # this session's batch loop (its first batch includes the compile)
+    steady_points: int  # points of this session's batches after the first
+    steady_s: float  # their time: the rate without the compile
+    session_s: float  # this session's wall time: setup, compile, loop, merge
+    wall_s_total: float  # the sweep's wall time summed over the sessions that made points
+
+
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
               n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
-              print_fn=print) -> pathlib.Path:
-    """Runs (or resumes) the sweep of one target kind; returns the merged npz path."""
+              print_fn=print) -> SweepRun:
+    """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind.
+
+    part_dir/meta.json keeps `wall_s_total`, the sum of the wall times of the sessions that ran
+    batches; it is updated after every part and on an exception, so an interrupted session's time
+    counts too (all but its last batch's if the process is killed)."""
+    t_start = time.perf_counter()
     if target not in terrain.ARTIFACT_KINDS:
         raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
     part_dir = out_dir / init / target
@@ -252,13 +364,23 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
             "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
             "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale}
     meta_path = part_dir / "meta.json"
+    wall0 = 0.0
     if meta_path.exists():
         old = json.loads(meta_path.read_text())
-        keys = ("policies", "seed", "config", "guide_scale")
-        if {k: old.get(k) for k in keys} != {k: json.loads(json.dumps(meta[k])) for k in keys}:
-            raise RuntimeError(f"{part_dir} holds parts of a sweep with other policies, seed or "
-                               f"config; move it away or pass another --out")
-    meta_path.write_text(json.dumps(meta, indent=2, default=str))
+        k_old, k_new = resume_key(old), resume_key(meta)
+        if k_old != k_new:
+            diff = [k for k in RESUME_KEYS if k_old[k] != k_new[k]]
+            diff += [f"config.{k}" for k in sorted(set(k_old["config"]) | set(k_new["config"]))
+                     if "config" in diff and k_old["config"].get(k) != k_new["config"].get(k)]
+            raise RuntimeError(f"{part_dir} holds parts of a sweep with other {', '.join(diff)}; "
+                               f"move it away or pass another --out")
+        wall0 = float(old.get("wall_s_total", 0.0))
+
+    def write_meta(wall_s_total):
+        meta["wall_s_total"] = round(wall_s_total, 3)
+        meta_path.write_text(json.dumps(meta, indent=2, default=str))
+
+    write_meta(wall0)
     others = np.array([j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]])
     runner = make_runner(env, suite.apply, target, cfg, guide_scale)
     parts = sorted(part_dir.glob("part_*.npz"))
@@ -267,42 +389,47 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
     if have:
         print_fn(f"[sweep {init}/{target}] resuming: {len(parts)} parts, {have:,} points")
     t0, pts0 = time.perf_counter(), have
+    steady_points, steady_s = 0, 0.0
     batch = cfg.batch
-    while have < cfg.n_points:
-        t_b = time.perf_counter()
-        idx = np.arange(b * batch, (b + 1) * batch)
-        ids = jnp.asarray(idx % n_tracks, jnp.int32)
-        src = jnp.asarray(others[idx % len(others)], jnp.int32)
-        rng = jax.random.fold_in(jax.random.PRNGKey(seed), b)
-        out = jax.device_get(runner(suite.params, rng, ids, src))
-        v = np.asarray(out["valid"])
-        state, hm = _split(np.asarray(out["window"])[v])
-        n_s = int(v.sum())
-        k = np.repeat(np.arange(n_s), N_WINDOW)
-        part = {"state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
-                "label": np.repeat(np.asarray(out["label"])[v], N_WINDOW).astype(np.int8),
-                "sample": (b * batch + np.flatnonzero(v)[k]).astype(np.int32),
-                "offset": np.tile(np.asarray(cfg.window, np.int8), n_s),
-                "source": np.repeat(np.asarray(out["source"])[v], N_WINDOW).astype(np.int8),
-                "switch_dist_m": np.repeat(np.asarray(out["switch_dist_m"])[v], N_WINDOW)
-                .astype(np.float32),
-                "track_id": np.repeat(np.asarray(out["track_id"])[v], N_WINDOW).astype(np.int32)}
-        tmp = part_dir / f"tmp_{b:05d}.npz"
-        np.savez_compressed(tmp, **part)
-        tmp.rename(part_dir / f"part_{b:05d}.npz")
-        have += len(part["label"])
-        b += 1
-        dt = time.perf_counter() - t_b
-        rate = (have - pts0) / max(time.perf_counter() - t0, 1e-9)
-        print_fn(f"[sweep {init}/{target}] batch {b}: {n_s}/{batch} valid samples, "
-                 f"{100 * np.mean(np.asarray(out['label'])[v]) if n_s else float('nan'):.0f}% "
-                 f"success; {have:,}/{cfg.n_points:,} points, {len(part['label']) / dt:,.0f} "
-                 f"points/s this batch ({dt:.1f} s), ~{max(cfg.n_points - have, 0) / max(rate, 1e-9) / 60:.1f} "
-                 f"min left")
-        if n_s == 0 and b >= 3 and have == 0:
-            raise RuntimeError(f"no valid switch sample in {b} batches: the source policies fall "
-                               f"before the switch point (untrained policies?)")
-    return merge_parts(part_dir, out_dir / init / f"{target}.npz", meta)
+    ran = False  # whether this session ran a batch (a session that runs none adds no time)
+    try:
+        while have < cfg.n_points:
+            ran = True
+            t_b = time.perf_counter()
+            idx = np.arange(b * batch, (b + 1) * batch)
+            ids = jnp.asarray(idx % n_tracks, jnp.int32)
+            src = jnp.asarray(others[idx % len(others)], jnp.int32)
+            rng = jax.random.fold_in(jax.random.PRNGKey(seed), b)
+            out = jax.device_get(runner(suite.params, rng, ids, src))
+            part, n_s = _part(out, b * batch, cfg.window)
+            tmp = part_dir / f"tmp_{b:05d}.npz"
+            np.savez_compressed(tmp, **part)
+            tmp.rename(part_dir / f"part_{b:05d}.npz")
+            write_meta(wall0 + time.perf_counter() - t_start)
+            n_p, dt = len(part["label"]), time.perf_counter() - t_b
+            if b > len(parts):  # not this session's first batch (the compile)
+                steady_points, steady_s = steady_points + n_p, steady_s + dt
+            have += n_p
+            b += 1
+            left_min = max(cfg.n_points - have, 0) / max(
+                (have - pts0) / max(time.perf_counter() - t0, 1e-9), 1e-9) / 60
+            print_fn(f"[sweep {init}/{target}] batch {b}: {n_s}/{batch} valid samples, "
+                     f"{100 * part['label'].mean() if n_s else float('nan'):.0f}% success; "
+                     f"{have:,}/{cfg.n_points:,} points, {n_p / max(dt, 1e-9):,.0f} points/s this "
+                     f"batch ({dt:.1f} s), ~{left_min:.1f} min left")
+            if n_s == 0 and b >= 3 and have == 0:
+                raise RuntimeError(f"no valid switch sample in {b} batches: the source policies "
+                                   f"fall before the switch point (untrained policies?)")
+    finally:  # an interrupted session's time counts too
+        if ran:
+            write_meta(wall0 + time.perf_counter() - t_start)
+    loop_s = time.perf_counter() - t0
+    path = merge_parts(part_dir, out_dir / init / f"{target}.npz", meta)
+    session_s = time.perf_counter() - t_start
+    if ran:
+        write_meta(wall0 + session_s)
+    return SweepRun(path, have - pts0, loop_s, steady_points, steady_s, session_s,
+                    meta["wall_s_total"])
 
 
 def merge_parts(part_dir: pathlib.Path, path: pathlib.Path, meta: dict) -> pathlib.Path:
@@ -355,6 +482,27 @@ def load_lookup(init: str, results: str | pathlib.Path = "experiments/results/lo
     return np.array([[np.nan if v is None else v for v in row] for row in m])
 
 
+def rate_or_none(points: int, seconds: float):
+    return round(points / seconds, 1) if points > 0 and seconds > 0 else None
+
+
+def data_stats(data: dict, path: pathlib.Path, wall_s_total: float) -> dict:
+    """A target's entry in the lookup's meta["sweeps"]; `wall_s` is the sweep's total wall time
+    over all its sessions (Table III's sweep cost)."""
+    return {"points": int(len(data["label"])), "wall_s": round(float(wall_s_total), 1),
+            "success_pct": round(100 * float(data["label"].mean()), 2), "data": str(path)}
+
+
+def stored_stats(data: dict, path: pathlib.Path, stored: dict) -> dict | None:
+    """The entry of a target not swept by this command: its entry in the existing lookup (the
+    speed of the session that made it) with points and total wall time from its data and part
+    dir (newer, if the data was extended elsewhere); None where no wall time is known."""
+    meta_path = path.with_suffix("") / "meta.json"
+    part_meta = json.loads(meta_path.read_text()) if meta_path.exists() else data["meta"]
+    wall = part_meta.get("wall_s_total", stored.get("wall_s"))
+    return None if wall is None else {**stored, **data_stats(data, path, wall)}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.sweep", description=__doc__.split("\n")[0])
     p.add_argument("--init", default="stand", choices=env_lib.INITS)
@@ -384,24 +532,33 @@ def main(argv=None) -> int:
     if cfg.n_points < 1 or cfg.batch < 1:
         p.error("--points and --batch must be >= 1")
     out = pathlib.Path(a.out)
+    lookup_path = pathlib.Path(a.results) / f"lookup_{a.init}.json"
+    stored = (json.loads(lookup_path.read_text())["meta"].get("sweeps", {})
+              if lookup_path.exists() else {})
     data, stats = {}, {}
     for target in a.targets:
-        t0 = time.perf_counter()
         print(f"sweep {a.init}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
               f"{jax.local_device_count()} {jax.devices()[0].platform} device(s)", flush=True)
-        path = run_sweep(a.init, target, cfg, out, a.runs, a.seed, a.tracks, a.stand_in,
-                         a.guide_scale, print_fn=lambda *s: print(*s, flush=True))
-        data[target] = load_data(path)
-        wall = time.perf_counter() - t0
-        n = len(data[target]["label"])
-        stats[target] = {"points": n, "wall_s": round(wall, 1), "points_per_s": round(n / wall, 1),
-                         "success_pct": round(100 * float(data[target]["label"].mean()), 2),
-                         "data": str(path), "device": str(jax.devices()[0])}
+        run = run_sweep(a.init, target, cfg, out, a.runs, a.seed, a.tracks, a.stand_in,
+                        a.guide_scale, print_fn=lambda *s: print(*s, flush=True))
+        data[target] = load_data(run.path)
+        stats[target] = {**data_stats(data[target], run.path, run.wall_s_total),
+                         "points_new": run.points_new, "session_s": round(run.session_s, 1),
+                         "loop_s": round(run.loop_s, 1),
+                         "points_per_s": rate_or_none(run.points_new, run.loop_s),
+                         "points_per_s_steady": rate_or_none(run.steady_points, run.steady_s),
+                         "device": str(jax.devices()[0])}
         print(json.dumps({"sweep": f"{a.init}/{target}", **stats[target]}), flush=True)
     for target in terrain.ARTIFACT_KINDS:  # the lookup table covers every target swept so far
         path = out / a.init / f"{target}.npz"
         if target not in data and path.exists():
             data[target] = load_data(path)
+            st = stored_stats(data[target], path, stored.get(target, {}))
+            if st is None:
+                print(f"no sweep time recorded for {a.init}/{target}: left out of meta.sweeps",
+                      file=sys.stderr)
+            else:
+                stats[target] = st
     tables = tables_from_data(data, cfg)
     meta = {"sweeps": stats, "policies": {k: d["meta"]["policies"] for k, d in data.items()}}
     doc = save_lookup(tables, a.init, pathlib.Path(a.results), meta)

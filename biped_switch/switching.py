@@ -21,6 +21,7 @@ all methods and both policy suites run through one compiled rollout.
 from __future__ import annotations
 
 import itertools
+import warnings
 from typing import NamedTuple
 
 import jax
@@ -59,6 +60,14 @@ def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9) 
     lookup_m = np.asarray(lookup_m, np.float32)
     if lookup_m.shape != (N_POLICIES, N_TARGETS):
         raise ValueError(f"lookup table must be {(N_POLICIES, N_TARGETS)}, got {lookup_m.shape}")
+    if method == "lookup":
+        own = np.zeros_like(lookup_m, bool)
+        own[np.arange(1, N_POLICIES), np.arange(N_TARGETS)] = True  # a target's own policy: unused
+        missing = np.argwhere(np.isnan(lookup_m) & ~own)
+        if len(missing):
+            warnings.warn(f"lookup table has no data for {len(missing)} pair(s) (active, target) "
+                          f"{[tuple(int(v) for v in m) for m in missing]}: those switch only at the "
+                          f"forced distance ({(cfg.force_switch_m):g} m)", stacklevel=2)
     f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
     return Rules(jnp.asarray(METHOD_INDEX[method], jnp.int32), jnp.asarray(np.nan_to_num(lookup_m)),
                  f32(cfg.estimator_threshold), f32(cfg.force_switch_m), f32(cfg.feet_tol_m),
@@ -196,12 +205,14 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
         key, k_u = jax.random.split(key)
         ci = controller_inputs(env, state, est_apply, est_params, rules)
         det = ci["detect"]
+        live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
+        n_before = ss.n_switches
         ss, _ = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
             ss, det["kind"], det["index"], det["dist_m"], ci["com_ok"], ci["est_probs"],
             jax.random.uniform(k_u, (n_envs,)), rules)
+        ss = ss._replace(n_switches=jnp.where(live, ss.n_switches, n_before))  # ended: not counted
         action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
         nxt = jax.vmap(env.step)(state, action)
-        live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
         # An ended episode keeps stepping (its metrics are frozen below and its decisions unused):
         # cheaper than masking the whole physics state every step.
         state = nxt

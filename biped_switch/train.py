@@ -260,7 +260,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         progress = {"step": step, "wall_s": wall_s, "chunk_train_s": train_s, "chunk_eval_s": eval_s,
                     "env_steps_per_s": chunk / train_s, "eval": ev,
                     "curriculum_before": cs.as_dict(), "curriculum": new_cs.as_dict(),
-                    "device": str(jax.devices()[0]), "n_devices": jax.device_count()}
+                    "device": str(jax.devices()[0]), "n_devices": jax.device_count(),
+                    "total_steps": int(cfg.total_timesteps)}  # the run's goal (Table III: finished?)
         path = _save(run_dir, step, params, progress)
         logger.log(step, {f"eval/{k}": v for k, v in ev.items()} | {
             "chunk_env_steps_per_s": chunk / train_s, "wall_s": wall_s} | {

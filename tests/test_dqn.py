@@ -357,19 +357,70 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     assert p1["step"] == 40 and p1["n_updates"] == 6 and p1["norm_ready"]
     assert p1["stand_in"] == "walk" and p1["policies"] == ["fake"] * 4 and p1["wall_s"] > 0
     assert p1["buffer_saved"] is False and p1["q_input_size"] == Q_IN
+    # an unfinished run shows it: step 40 of the planned 120; the saved epsilon is the schedule's
+    # value at the saved step (cpu preset: 1 -> 0.05 over 10,000 env steps)
+    assert p1["total_env_steps"] == 120 and p1["epsilon"] == pytest.approx(1.0 - 0.95 * 40 / 10_000)
+    assert 0 < p1["setup_s_total"] == p1["session_setup_s"] < p1["wall_s"]
     last = p1["last"]  # iterations 6..10: every env finishes its episode (6 steps) at iteration 6
     assert np.isfinite(last["loss"]) and np.isfinite(last["q_mean"])
     assert last["episodes"] == 4 and last["episode_length"] == 6 and last["episode_success"] == 1
     ckpt = tmp_path / "checkpoints" / f"{40:012d}"
-    assert json.loads((ckpt / "progress.json").read_text())["step"] == 40
+    saved = json.loads((ckpt / "progress.json").read_text())
+    assert saved["step"] == 40 and saved["total_env_steps"] == 120
     _, q1 = dqn.load_dqn(tmp_path)
     assert not np.allclose(np.asarray(q1["norm"]["std"]), 1.0)  # the frozen normaliser was saved
     p2 = dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite)
     # resumed: 2 more chunks; the empty buffer refills (4 iterations) before updates resume
     assert p2["step"] == 120 and p2["n_updates"] == 6 + (20 - 4) and p2["wall_s"] > p1["wall_s"]
+    assert p2["total_env_steps"] == p2["step"]  # finished
+    assert p2["epsilon"] == pytest.approx(1.0 - 0.95 * 120 / 10_000)
+    # the resumed session's setup is added (its last chunk is not its first: no setup of its own)
+    assert p2["session_setup_s"] == 0 and p1["setup_s_total"] < p2["setup_s_total"] < p2["wall_s"]
     x = np.linspace(-1, 1, 3 * Q_IN, dtype=np.float32).reshape(3, Q_IN)
     _check_resumed_run(tmp_path, cfg, env, suite.apply, lines, 120, q1, x)
     assert dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite) == {}  # done
+
+
+def test_run_loop_syncs_target_every_period_and_follows_epsilon():
+    """The jitted loop, one iteration (4 env steps, 3 updates) per `run` call, 260 calls (1,040
+    env steps, 768 updates): the target is a hard copy of the online net exactly when n_updates is
+    a multiple of 4, and frozen between syncs; each iteration acts with the epsilon of the linear
+    schedule (1 -> 0.05 over 600 env steps) at its own step; the loss stays finite."""
+    env, suite = FakeEnv(end_step=6), index_suite()
+    cfg = _tiny_cfg(log_every=1, updates_per_collect=3, target_update_period=4)
+    cfg.epsilon.update(start=1.0, end=0.05, decay_steps=600)
+    fns = dqn.make_train_fns(cfg, env, suite.apply)
+    pool = fns.reset_pool(jax.random.PRNGKey(1))
+    ts = fns.init(jax.random.PRNGKey(0), pool)
+    net = lambda p: jax.tree.leaves(jax.device_get(p["net"]))  # noqa: E731
+    same = lambda a, b: all(np.array_equal(x, y) for x, y in zip(a, b))  # noqa: E731
+    target_prev, n_prev = net(ts.target), 0
+    seen = {"synced": 0, "apart": 0, "frozen": 0, "mid_call_sync": 0}
+    for i in range(260):
+        ts, sums = fns.run(ts, suite.params, pool)
+        sums = jax.device_get(sums)
+        online, target, n = net(ts.params), net(ts.target), int(ts.n_updates)
+        # the buffer holds 4 * (i + 1) transitions after iteration i: updates from 20 on
+        assert n == (3 * (i - 3) if i >= 4 else 0) and int(ts.env_steps) == 4 * (i + 1)
+        assert sums["learned"] == float(i >= 4) and np.isfinite(sums["loss"])
+        if n % 4 == 0:
+            assert same(target, online), (i, n)
+            seen["synced"] += 1
+        else:
+            assert not same(target, online), (i, n)
+            seen["apart"] += 1
+        syncs = [k for k in range(n_prev + 1, n + 1) if k % 4 == 0]
+        if not syncs:  # no sync during this call: the target did not move
+            assert same(target, target_prev), (i, n)
+            seen["frozen"] += 1
+        elif syncs[-1] < n:  # synced mid-call, then the online net moved on
+            assert not same(target, target_prev), (i, n)
+            seen["mid_call_sync"] += 1
+        eps = lambda s: 1.0 + min(s / 600, 1.0) * (0.05 - 1.0)  # noqa: E731
+        assert sums["epsilon_used"] == pytest.approx(eps(4 * i), abs=1e-6)
+        assert sums["epsilon"] == pytest.approx(eps(4 * (i + 1)), abs=1e-6)
+        target_prev, n_prev = target, n
+    assert n_prev == 768 and min(seen.values()) >= 50, seen
 
 
 def _check_resumed_run(run_dir, cfg, env, apply, lines, final_step, q1, x):

@@ -557,3 +557,21 @@ def test_config_errors():
         env_lib.make_env(n_tracks=0)
     with pytest.raises(KeyError, match="no_such_key"):
         env_lib.make_env(no_such_key=1)
+
+
+def test_blame_kind_hand_cases():
+    """Two artifacts with 1.2 m of flat between them (shorter than 0.9 m detection + 1.0 m after):
+    a fall in the overlap is the next artifact's, where the detector already names it."""
+    x0 = np.array([5.0, 7.0, terrain.FAR_X_M])
+    x1 = np.array([5.8, 8.0, terrain.FAR_X_M])
+    kind = np.array([1, 2, -1])  # gaps, then stairs, then padding
+    cases = {0.0: -1,    # start flats
+             4.2: 1,     # 0.8 m before the gaps: in its detection zone
+             5.5: 1,     # on the gaps
+             6.05: 1,    # 0.25 m past the gaps, stairs 0.95 m ahead (not detected yet)
+             6.2: 2,     # 0.8 m before the stairs: theirs, though within 1 m of the gaps' end
+             8.9: 2,     # 0.9 m past the stairs
+             9.1: -1}    # past every artifact's window
+    for x, want in cases.items():
+        got = int(env_lib.blame_kind(jnp.float32(x), x0, x1, kind, 0.9, 1.0))
+        assert got == want, (x, got, want)

@@ -251,7 +251,8 @@ def test_cli_end_to_end(tmp_path, capsys):
         assert "history" not in r["metrics"] and 0 <= r["metrics"]["val_auc"] <= 1
         assert r["data_file"].endswith(f"stand/{t}.npz")
         assert (res / f"stand_{t}.png").stat().st_size > 0
-        assert len((res / f"stand_{t}_history.csv").read_text().splitlines()) == 3
+        hist_csv = (res / f"stand_{t}_history.csv").read_text().splitlines()
+        assert len(hist_csv) == 3 and hist_csv[0] == "epoch,train_loss,val_loss,val_acc,epoch_s"
         assert json.loads((out / f"stand_{t}" / "meta.json").read_text())["sweep_meta"]["synthetic"]
     stacked, metas = est.load_estimator_set("stand", model_dir=out, targets=("jumps", "gaps"))
     assert [m["target"] for m in metas] == ["jumps", "gaps"]
@@ -272,3 +273,15 @@ def test_cli_names_the_sweep_command_for_missing_data(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "python -m biped_switch.sweep --init random --target stairs" in err
     assert not (tmp_path / "m").exists()
+
+
+def test_estimator_benchmark_reports_consistent_figures():
+    """The benchmark's projection is its measured epoch time x the configured epochs."""
+    from biped_switch import bench
+
+    r = bench.run_estimator(points=500, epochs=3)
+    n = r["train_points"]  # ~90% of 500, fewer after the forced 50/50 balance
+    assert 350 < n <= 450 and r["epochs_timed"] == 2 and r["batch_size"] == n  # one batch per epoch
+    assert 0 < r["epoch_s"] < r["first_epoch_s"]  # epoch 1 includes the compile
+    assert r["projected_s_for_config_epochs"] == pytest.approx(r["epoch_s"] * 1500, rel=1e-3, abs=0.1)
+    assert r["train_points_per_s"] == pytest.approx(n / r["epoch_s"], rel=1e-2)

@@ -44,10 +44,11 @@ def test_markdown_row_has_paper_figures():
     assert "| gaps | random | 4 | 68.8 (40.0-90.0) | 50.0 (15.0-85.0) | 87.4 | 75.5 |" in md
 
 
-def _fake_run(run_dir, wall_s, device="cuda:0", step=1000):
+def _fake_run(run_dir, wall_s, device="cuda:0", step=1000, **extra):
     ck = run_dir / "checkpoints" / f"{step:012d}"
     ck.mkdir(parents=True)
-    (ck / "progress.json").write_text(json.dumps({"wall_s": wall_s, "device": device, "step": step}))
+    (ck / "progress.json").write_text(json.dumps({"wall_s": wall_s, "device": device, "step": step,
+                                                  **extra}))
 
 
 def test_retrain_cost_from_logs(tmp_path):
@@ -73,6 +74,30 @@ def test_retrain_cost_from_logs(tmp_path):
     assert rows["end_to_end"]["hours"] == pytest.approx(3.0)
     md = ev.table3_markdown(ev.retrain_cost(runs, res))
     assert "| ours | 1.90 |" in md and "| end_to_end | 3.00 |" in md
+    assert all(r["status"] == "complete" for r in rows.values())  # no goal or curriculum recorded
+
+
+def test_retrain_cost_flags_unfinished_and_stand_in_runs(tmp_path):
+    """Hours of a snapshot must not sit beside the paper's unflagged: a run short of its goal, with
+    guides still on, or choosing among stand-ins is named in the row's status."""
+    runs, res = tmp_path / "runs", tmp_path / "results"
+    done = {"curriculum": {"stage_name": "pushes", "difficulty": 1.0, "guide_scale": 0.0}}
+    for k in ("jumps", "gaps"):
+        _fake_run(runs / f"{k}_stand", 3600.0, step=100, total_steps=100, n_devices=2, **done)
+    _fake_run(runs / "stairs_stand", 3600.0, step=100, total_steps=100, n_devices=2,
+              curriculum={"stage_name": "guides", "difficulty": 1.0, "guide_scale": 0.8})
+    _fake_run(runs / "mixed_stand", 7200.0, step=50, total_steps=100, **done)
+    _fake_run(runs / "dqn_stand", 3600.0, step=10, total_env_steps=10, stand_in="walk")
+    doc = ev.retrain_cost(runs, res)
+    rows = {r["method"]: r for r in doc["rows"]}
+    assert rows["ours"]["hours"] is None and rows["ours"]["status"] == "not measured"  # no sweeps
+    assert rows["ours"]["device"] == "cuda:0 x2"
+    assert rows["dqn"]["hours"] == pytest.approx(2.0)
+    assert rows["dqn"]["status"] == ("stairs_stand curriculum unfinished (guides d=1.0 guide=0.8); "
+                                     "dqn_stand chose among stand-ins (walk)")
+    assert rows["end_to_end"]["status"] == "mixed_stand at step 50 of 100"
+    md = ev.table3_markdown(doc)
+    assert "| end_to_end | 2.00 | policy 2.00 | cuda:0 x1 | mixed_stand at step 50 of 100 | 34 |" in md
 
 
 def _fake_ckpt(run_dir, step=1):
@@ -104,3 +129,34 @@ def test_available_methods_names_what_is_missing(tmp_path):
     assert ev.find_dqn(runs) == runs / "dqn_stand"
     assert ev.find_dqn(runs, dqn_dir=tmp_path / "no_dqn") is None  # an explicit directory only
     assert ev.find_dqn(tmp_path / "no_runs", "random") is None
+
+
+def test_demo_horizon_lets_the_target_speed_finish():
+    """Every demo track can be finished at the target speed within the limit (the old fixed 30 s
+    on 7-artifact tracks made success impossible), with the 1.4 margin and no more."""
+    from biped_switch import demo, terrain
+    from biped_switch.config import default_terrain_config
+
+    tcfg = default_terrain_config()
+    tcfg.n_artifacts = 3
+    h = demo.horizon_for(6, 3)
+    finish = [terrain.generate_track(ev.MULTI_TRACK_SEED + i, "mixed", 1.0, tcfg).artifacts[-1][2]
+              + tcfg.finish_after_m for i in range(6)]
+    need = [0.5 + f / 0.8 for f in finish]  # pause, then walking at 0.8 m/s
+    assert h >= 1.4 * max(need) - 1.4 * 0.5 and h < 1.4 * max(need) + 1.0
+    assert 10.0 < max(finish) < 20.0  # 3 artifacts of 4-9 segments of ~0.4 m, flats between
+
+
+@pytest.mark.slow
+def test_demo_runs_end_to_end_on_the_pipeline_check(tmp_path):
+    """`make demo` at a tiny size: table, Fig. 5 and summary written (about 6 min on 2 cores)."""
+    from biped_switch import demo
+
+    out = tmp_path / "demo"
+    assert demo.main(["--trials", "2", "--horizon-s", "2", "--no-video", "--out", str(out),
+                      "--runs", str(tmp_path / "no_runs")]) == 0
+    summary = json.loads((out / "demo_summary.json").read_text())
+    assert summary["stand_ins"] and summary["trials"] == 2 and summary["n_artifacts"] == 2
+    md = (out / "table2_demo.md").read_text()
+    assert md.startswith("PIPELINE CHECK") and "| detection | 2 |" in md
+    assert (out / "fig5_demo.png").stat().st_size > 10_000

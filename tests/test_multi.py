@@ -82,7 +82,13 @@ def test_table2_metrics_on_synthetic_outcomes():
     assert lo == pytest.approx(31.27, abs=0.01) and hi == pytest.approx(83.18, abs=0.01)  # Wilson
     row.update(method="estimator")
     md = evaluate.table2_markdown([row])
-    assert "| estimator | 10 | 78.0" in md and "| 60.0 (31.3-83.2) | 20.0 | 0.0 | 10.0 |" in md
+    # Wilson intervals by hand (den 1 + 1.96^2/10 = 1.3842): 2/10 -> centre 0.2833, half 0.2266;
+    # 1/10 -> 0.2110, 0.1931; 0/10 -> 0.1388, 0.1388
+    assert row["fail_ci"]["gaps"] == pytest.approx([5.67, 50.98], abs=0.01)
+    assert row["fail_ci"]["stairs"] == pytest.approx([1.79, 40.42], abs=0.01)
+    assert row["fail_ci"]["jumps"] == pytest.approx([0.0, 27.75], abs=0.01)
+    assert "| estimator | 10 | 78.0" in md
+    assert "| 60.0 (31.3-83.2) | 20.0 (5.7-51.0) | 0.0 (0.0-27.8) | 10.0 (1.8-40.4) |" in md
     assert "82.4 / 71.4" in md  # the paper's row beside ours
 
 

@@ -3,9 +3,11 @@
 The tree is the committed pipeline-check set (experiments/results/pipeline_check/, real outputs of
 the CLIs with untrained stand-in policies) when it exists, else a synthetic tree written here with
 the package's own table and lookup functions. Each notebook is executed in a fresh kernel of this
-interpreter with BIPED_RESULTS pointing at the tree; the tests check that it drew its figures and
-that its printed tables hold the numbers in the files. A notebook pointed at an empty results root
-must fail with a message naming the command that makes its input.
+interpreter with BIPED_RESULTS pointing at the tree (and BIPED_RUNS, where training runs are
+looked for, at a synthetic runs folder for the training curves); the tests check that it drew its
+figures, that its printed tables hold the numbers in the files and that it prints a verdict. A
+notebook pointed at an empty results root must fail with a message naming the command that makes
+its input.
 """
 
 from __future__ import annotations
@@ -144,6 +146,32 @@ def make_synthetic_results(root: pathlib.Path) -> pathlib.Path:
     return root
 
 
+def make_synthetic_runs(root: pathlib.Path) -> pathlib.Path:
+    """A runs folder as `python -m biped_switch.train --out <root>` leaves it: gaps_random reached
+    its step goal with its curriculum finished, jumps_stand stopped early with guide forces on."""
+    for name, step, total, curr in (
+            ("gaps_random", 200_000, 200_000, {"stage": 2, "stage_name": "pushes", "difficulty": 1.0,
+                                               "guide_scale": 0.0, "push_scale": 1.0}),
+            ("jumps_stand", 100_000, 1_000_000, {"stage": 0, "stage_name": "terrain",
+                                                 "difficulty": 0.3, "guide_scale": 1.0,
+                                                 "push_scale": 0.0})):
+        d = root / name
+        (d / "checkpoints" / f"{step:012d}").mkdir(parents=True)
+        (d / "config.json").write_text(json.dumps({"policy": name.split("_")[0],
+                                                   "total_timesteps": total}))
+        (d / "checkpoints" / f"{step:012d}" / "progress.json").write_text(json.dumps(
+            {"step": step, "wall_s": 7200.0, "curriculum": curr, "device": "cpu:0",
+             "total_steps": total}))
+        with (d / "metrics.csv").open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["step", "difficulty", "guide_scale", "push_scale", "episode/sum_reward",
+                        "episode/length", "eval/reward_per_step", "wall_s"])
+            for i in range(1, 5):
+                w.writerow([i * step // 4, curr["difficulty"], curr["guide_scale"],
+                            curr["push_scale"], 50.0 * i, 100 * i, "", 1800.0 * i])
+    return root
+
+
 def _trace(track_seed: int, T: int = 400) -> dict:
     """A plausible per-step record of one estimator-switching trial on the seed's mixed track."""
     from biped_switch import terrain
@@ -193,6 +221,11 @@ def synthetic(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def synthetic_runs(tmp_path_factory):
+    return make_synthetic_runs(tmp_path_factory.mktemp("runs"))
+
+
+@pytest.fixture(scope="module")
 def data_root(tmp_path_factory):
     """The committed pipeline-check results when present, else the synthetic tree."""
     if PIPELINE_CHECK.is_dir():
@@ -214,10 +247,14 @@ def kernel_env(tmp_path_factory):
             "MPLBACKEND": "module://matplotlib_inline.backend_inline"}
 
 
-def run_notebook(name: str, results: pathlib.Path, env: dict, monkeypatch):
+def run_notebook(name: str, results: pathlib.Path, env: dict, monkeypatch, runs=None):
     for k, v in env.items():
         monkeypatch.setenv(k, v)
     monkeypatch.setenv("BIPED_RESULTS", str(results))
+    if runs is not None:
+        monkeypatch.setenv("BIPED_RUNS", str(runs))
+    else:
+        monkeypatch.delenv("BIPED_RUNS", raising=False)
     nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
     client = nbclient.NotebookClient(nb, kernel_name=KERNEL, timeout=120, startup_timeout=90,
                                      resources={"metadata": {"path": str(NB_DIR)}})
@@ -232,7 +269,7 @@ def run_notebook(name: str, results: pathlib.Path, env: dict, monkeypatch):
 
 
 # ----------------------------------------------------------------------------- tests
-def test_helpers_on_synthetic_tree(synthetic, monkeypatch):
+def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
     """_common reads the synthetic tree back: tables hold the numbers, stand-ins are flagged."""
     import matplotlib
 
@@ -259,9 +296,31 @@ def test_helpers_on_synthetic_tree(synthetic, monkeypatch):
     ev = C.trial_events(rec)[1]
     assert sum(r[2] == "switch" for r in ev) == int(rec["switched"][:C.trial_length(rec)].sum()) > 0
     assert C.trial_outcome(rec) == "success"
-    runs = C.find_training_runs(synthetic)
-    assert [d.name for d in runs] == ["gaps_stand", "walk_stand"]
-    assert C.training_rows(runs)[1][0][1] == "120,000"
+    monkeypatch.setenv("BIPED_RUNS", str(synthetic_runs))
+    assert C.run_roots(synthetic) == [synthetic_runs] == [C.runs_root(synthetic)]
+    runs = C.find_training_runs(synthetic)  # <results>/training/* and the runs folder
+    by_name = {d.name: d for d in runs}
+    assert sorted(by_name) == ["gaps_random", "gaps_stand", "jumps_stand", "walk_stand"]
+    assert C.training_rows([by_name["walk_stand"]])[1][0][1] == "120,000"
+    reasons = C.training_checks(runs)
+    assert not any(C.run_name(by_name["gaps_random"]) in r for r in reasons)  # finished: no note
+    assert any("jumps_stand" in r and "100,000 of 1,000,000" in r and "curriculum unfinished" in r
+               for r in reasons)
+    assert C.train_command(synthetic_runs, "gaps")[-2:] == ["--out", str(synthetic_runs)]
+    monkeypatch.delenv("BIPED_RUNS")
+    assert C.runs_root() == REPO / "runs" and C.train_command()[-1] == "runs"
+    assert C.run_roots(PIPELINE_CHECK) == [REPO / "runs", REPO / "models" / "pipeline_check"]
+    assert C.runs_root(PIPELINE_CHECK) == REPO / "models" / "pipeline_check"
+    # Table III: hours whose runs cannot be found are not taken for complete runs
+    t3 = json.loads((synthetic / "table3" / "table3.json").read_text())
+    runs3, checks = C.table3_checks(t3, synthetic, synthetic_runs)
+    assert runs3 == synthetic_runs and checks["dqn"] == []
+    assert checks["end_to_end"] and checks["ours"]
+    t3_reasons = C.provenance_table3(t3, synthetic / "table3" / "table3.json", synthetic,
+                                     synthetic_runs)
+    assert any("no total hours for dqn" in r for r in t3_reasons)
+    hdr, rows3 = C.table3_rows(t3, checks)
+    assert [r[hdr.index("hours from")] for r in rows3] == ["UNFINISHED RUNS", "-", "UNFINISHED RUNS"]
     from biped_switch import terrain
 
     for fig in (C.plot_table1(json.loads((synthetic / "table1" / "table1.json").read_text())),
@@ -295,13 +354,17 @@ def _stop(*_a, **_k):
 
 def test_recompute_commands_parse(tmp_path, monkeypatch):
     """The commands the notebooks name (and run when RECOMPUTE = True) are accepted by the CLIs;
-    the work itself is patched out. (retrain-cost is not checked: it is not in evaluate yet.)"""
+    the work itself is patched out, except retrain-cost, which only reads logs and runs for real
+    (into a temporary folder) on the results root the Table III notebook reads."""
     from biped_switch import estimator, evaluate, sweep, train
 
+    monkeypatch.chdir(REPO)  # the commands are typed from the repository root
+    monkeypatch.delenv("BIPED_RUNS", raising=False)
     settings = {"methods": ["random", "estimator"], "trials": 8, "batch": 4, "horizon_s": 20.0,
                 "seed": 1, "runs": "runs", "estimators": "models/estimators", "stand_in": "walk",
                 "guide_scale": 0.5, "fig5_trial": 0, "policies": ["jumps"], "inits": ["stand"]}
     monkeypatch.setattr(evaluate, "_main_multi", _stop)
+    find_policy = evaluate.find_policy
     monkeypatch.setattr(evaluate, "find_policy", lambda *a: None)  # single: nothing to evaluate
     monkeypatch.setattr(sweep, "run_sweep", _stop)
     monkeypatch.setattr(estimator, "load_data", _stop)
@@ -313,7 +376,8 @@ def test_recompute_commands_parse(tmp_path, monkeypatch):
              (evaluate.main, C.table1_command(tmp_path, settings)),
              (sweep.main, C.lookup_command(tmp_path, "random")),
              (estimator.main, C.estimator_command(tmp_path) + ["--data", str(tmp_path / "none")]),
-             (train.main, C.train_command(tmp_path, "gaps", "random"))]
+             (train.main, C.train_command(tmp_path, "gaps", "random")),
+             (train.main, C.train_command(None, "gaps", "random"))]
     for main, argv in cases:
         assert argv[0] == "-m" and main.__module__ == argv[1]
         try:
@@ -321,6 +385,27 @@ def test_recompute_commands_parse(tmp_path, monkeypatch):
         except _Parsed:
             rc = None
         assert rc in (None, 1, 2), (argv, rc)  # 1: no policy found (single), 2: no sweep data
+    # retrain-cost: reads <runs> and <results> of the notebook's root, writes <results>/table3
+    root = PIPELINE_CHECK if (PIPELINE_CHECK / "lookup").is_dir() else make_synthetic_results(
+        tmp_path / "results")
+    argv = C.table3_command(root, None, "stand")
+    assert argv[:3] == ["-m", "biped_switch.evaluate", "retrain-cost"]
+    flags = dict(zip(argv[3::2], argv[4::2]))
+    assert flags == {"--runs": C.rel(C.runs_root(root)), "--results": C.rel(root), "--init": "stand",
+                     "--out": C.rel(root / "table3")}
+    flags["--out"] = str(tmp_path / "table3")  # not over the committed table
+    monkeypatch.setattr(evaluate, "find_policy", find_policy)
+    assert evaluate.main(["retrain-cost", *[x for kv in flags.items() for x in kv]]) == 0
+    doc = json.loads((tmp_path / "table3" / "table3.json").read_text())
+    ours = next(r for r in doc["rows"] if r["method"] == "ours")["parts"]
+    assert ours["sweep jumps"] is not None and ours["estimator gaps"] is not None  # read <results>
+    checks = C.table3_checks(doc, root)[1]
+    if root == PIPELINE_CHECK:  # its runs are models/pipeline_check: flagged wherever measured
+        assert checks["ours"] and all(checks[r["method"]] for r in doc["rows"]
+                                      if any(v is not None for v in r["parts"].values()))
+        e2e = next(r for r in doc["rows"] if r["method"] == "end_to_end")
+        if e2e["hours"] is not None:  # the 100k-step snapshot: never beside 34 h unflagged
+            assert any("pipeline" in n for n in checks["end_to_end"])
 
 
 def _input_or_skip(root: pathlib.Path, name: str) -> None:
@@ -331,14 +416,17 @@ def _input_or_skip(root: pathlib.Path, name: str) -> None:
 
 
 @pytest.mark.parametrize("name", NOTEBOOKS)
-def test_notebook_runs(name, data_root, synthetic, kernel_env, monkeypatch):
+def test_notebook_runs(name, data_root, synthetic, synthetic_runs, kernel_env, monkeypatch):
     # a result the pipeline check has not produced (Table I needs trained artifact policies) is
     # drawn from the synthetic tree instead
     if not (data_root / INPUTS[name][0]).exists():
         data_root = synthetic
     _input_or_skip(data_root, name)
-    text, images = run_notebook(name, data_root, kernel_env, monkeypatch)
-    assert "VERDICT" in text or name == "table3_retrain_cost"
+    runs_dir = synthetic_runs if name == "training_curves" else None
+    text, images = run_notebook(name, data_root, kernel_env, monkeypatch, runs_dir)
+    assert "VERDICT" in text
+    if C.is_pipeline_check(data_root):
+        assert "VERDICT: PIPELINE CHECK" in text
     if name == "table1_single_policies":
         doc = json.loads((data_root / "table1" / "table1.json").read_text())
         assert images >= 1
@@ -356,6 +444,7 @@ def test_notebook_runs(name, data_root, synthetic, kernel_env, monkeypatch):
     elif name == "table3_retrain_cost":
         doc = json.loads((data_root / "table3" / "table3.json").read_text())
         assert images >= 1
+        assert "hours from" in text
         for r in doc["rows"]:
             assert r["method"] in text
             if r.get("hours") is not None:
@@ -379,9 +468,11 @@ def test_notebook_runs(name, data_root, synthetic, kernel_env, monkeypatch):
         assert sum(e[2] == "switch" for e in events) == int(rec["switched"][:n].sum())
         assert f"track seed {int(rec['track_seed'])}" in text
     elif name == "training_curves":
+        monkeypatch.setenv("BIPED_RUNS", str(synthetic_runs))
         runs = C.find_training_runs(data_root)
         ests = C.find_estimators(data_root)
         assert runs and ests
+        assert {"gaps_random", "jumps_stand"} <= {d.name for d in runs}  # the runs folder too
         assert images >= 2 + len(runs)
         for d in runs:
             assert d.name in text
@@ -389,9 +480,17 @@ def test_notebook_runs(name, data_root, synthetic, kernel_env, monkeypatch):
             assert e in text
 
 
+def test_training_curves_without_estimators(tmp_path, synthetic_runs, kernel_env, monkeypatch):
+    """Training runs but no estimators: the notebook says what is missing instead of failing."""
+    text, images = run_notebook("training_curves", tmp_path, kernel_env, monkeypatch, synthetic_runs)
+    assert "VERDICT" in text and images >= 3
+    assert "MISSING: no switch estimator curves" in text
+    assert "python -m biped_switch.estimator" in text
+
+
 @pytest.mark.parametrize("name", NOTEBOOKS)
 def test_notebook_without_data_fails_naming_the_command(name, tmp_path, kernel_env, monkeypatch):
     with pytest.raises(CellExecutionError) as e:
-        run_notebook(name, tmp_path, kernel_env, monkeypatch)
+        run_notebook(name, tmp_path, kernel_env, monkeypatch, runs=tmp_path / "runs")
     msg = str(e.value)
     assert "MissingResult" in msg and INPUTS[name][1] in msg, msg[-2000:]

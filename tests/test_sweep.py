@@ -4,6 +4,8 @@ reference loop of the shared jitted env step."""
 
 from __future__ import annotations
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -48,17 +50,97 @@ def test_touchdowns_and_steps_past_by_hand():
     now = jnp.zeros(8).at[2].set(1.0)
     assert sweep.touchdowns(now, jnp.zeros(8)).tolist() == [True, False]
     soles_x = jnp.asarray([2.0] * 4 + [1.0] * 4)  # left foot past x = 1.5, right foot not
-    assert int(sweep.count_steps_past(0, _c(1, 1), _c(0, 0), soles_x, 1.5)) == 1
-    assert int(sweep.count_steps_past(1, _c(1, 1), _c(1, 1), soles_x, 1.5)) == 1  # no landing
-    # walk: L lands past, R lands short of the end, R lands past -> 2 steps past the end
-    states = [_c(0, 1), _c(1, 1), _c(1, 0), _c(1, 1), _c(1, 0), _c(1, 1)]
-    right_x = [1.0, 1.0, 1.0, 1.0, 2.4, 2.4]
-    count = 0
+    L, R, N = sweep.LEFT, sweep.RIGHT, sweep.NO_FOOT
+    count = jax.jit(sweep.count_steps_past)
+    assert [int(v) for v in count(0, N, _c(1, 1), _c(0, 0), soles_x, 1.5)] == [1, L]
+    assert [int(v) for v in count(1, L, _c(1, 1), _c(1, 1), soles_x, 1.5)] == [1, L]  # no landing
+    # L lands past, R lands short of the end, L lands past again (same foot: no new step),
+    # R lands past, both land together (one step), L lands past
+    states = [_c(0, 1), _c(1, 1), _c(1, 0), _c(1, 1), _c(0, 1), _c(1, 1), _c(1, 0), _c(1, 1),
+              _c(0, 0), _c(1, 1), _c(0, 1), _c(1, 1)]
+    right_x = [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 2.4, 2.4, 2.4, 2.4, 2.4]
+    steps, last = 0, N
+    got = []
     for k in range(1, len(states)):
         x = jnp.asarray([2.0] * 4 + [right_x[k]] * 4)
-        count = sweep.count_steps_past(count, states[k], states[k - 1], x, 1.5)
-        assert int(count) == [1, 1, 1, 1, 2][k - 1]
-    assert int(count) == 2
+        steps, last = count(steps, last, states[k], states[k - 1], x, 1.5)
+        got.append((int(steps), int(last)))
+    assert got == [(1, L), (1, L), (1, L), (1, L), (1, L), (1, L), (2, R), (2, R), (3, N), (3, N),
+                   (4, L)]
+
+
+_label_step = jax.jit(sweep.label_step, static_argnames="steps_past")
+
+
+def _label_trace(events, t_switch=1, horizon=50, steps_past=2, art_end_x=1.5):
+    """Runs the label rule on a hand-made episode, a dict {control step: event} with events
+    "L", "R", "LR" (those feet land past the end), "l" / "r" (lands short of it), "fall",
+    "success", "done" or a "+"-joined mix ("R+fall": R lands and that step falls).
+    Returns (label, fell, fell_before, steps past the end, the step the record ended or None)."""
+    lab = sweep.labelling_init()
+    switched = False
+    for t in range(60):
+        ev = events.get(t, "").split("+")
+        land = [any(e in ev for e in ("L", "LR", "l")), any(e in ev for e in ("R", "LR", "r"))]
+        feet_x = [art_end_x - 0.3 if s in ev else art_end_x + 0.2 for s in ("l", "r")]
+        contact_prev = _c(*[0.0 if f else 1.0 for f in land])
+        soles_x = jnp.asarray([feet_x[0]] * 4 + [feet_x[1]] * 4)
+        live = sweep.is_live(lab, jnp.int32(t), horizon)
+        now = bool(live) and t == t_switch
+        lab = _label_step(lab, live, jnp.bool_(switched), jnp.bool_(switched or now), _c(1, 1),
+                          contact_prev, soles_x, jnp.float32(art_end_x), jnp.bool_("fall" in ev),
+                          jnp.bool_("success" in ev), jnp.bool_("done" in ev or "fall" in ev
+                                                                or "success" in ev),
+                          steps_past=steps_past)
+        switched = switched or now
+        if bool(lab.ended) and not bool(live):
+            break
+        end = t if bool(lab.ended) else None
+    return bool(lab.label), bool(lab.fell), bool(lab.fell_before), int(lab.steps), end
+
+
+@pytest.mark.parametrize("events,expect", [
+    # left then right past the end: labelled on the right foot's landing
+    ({3: "L", 6: "R"}, (True, False, False, 2, 6)),
+    ({3: "R", 6: "LR"}, (True, False, False, 2, 6)),
+    # a fall before the second step
+    ({3: "L", 5: "fall", 6: "R"}, (False, True, False, 1, 5)),
+    # the same foot landing twice (a bounce) is one step; the episode times out at the horizon
+    ({3: "L", 5: "L", 7: "L"}, (False, False, False, 1, None)),
+    # a fall on the same step as the second touchdown
+    ({3: "L", 6: "R+fall"}, (False, True, False, 2, 6)),
+    # a fall after the two steps does not undo the label
+    ({3: "L", 6: "R", 7: "fall"}, (True, False, False, 2, 6)),
+    # reaching the finish line, one step past the end
+    ({3: "L", 8: "success"}, (True, False, False, 1, 8)),
+    # the env's episode ends otherwise
+    ({3: "L", 8: "done", 9: "R"}, (False, False, False, 1, 8)),
+    # landings short of the end, or up to the switch step (1), do not count
+    ({0: "L", 1: "R", 3: "r", 4: "L", 5: "r"}, (False, False, False, 1, None)),
+    ({0: "L", 1: "R", 3: "r", 4: "L", 5: "r", 6: "R"}, (True, False, False, 2, 6)),
+    # both feet landing together (after a hop) is one step; the next landing of either is two
+    ({3: "LR"}, (False, False, False, 1, None)),
+    ({3: "LR", 5: "L"}, (True, False, False, 2, 5)),
+    # a fall before the switch: no sample
+    ({0: "fall"}, (False, True, True, 0, 0)),
+])
+def test_label_rule_on_hand_made_traces(events, expect):
+    assert _label_trace(events) == expect
+
+
+def test_label_rule_horizon_and_steps_past():
+    # the second step on the last control step within the horizon counts, one later does not
+    assert _label_trace({3: "L", 9: "R"}, horizon=10)[0]
+    assert _label_trace({3: "L", 10: "R"}, horizon=10) == (False, False, False, 1, None)
+    # steps_past = 3: left, right, left; a second right is no third step
+    assert _label_trace({3: "L", 5: "R", 7: "L"}, steps_past=3)[::4] == (True, 7)
+    assert _label_trace({3: "L", 5: "R", 7: "R"}, steps_past=3)[::3] == (False, 2)
+
+
+# Steps count past the artifact's end moved 3.5 m back: the guided robot stops at the artifacts, and
+# behind the robot the labels of this batch are 1 (two tracks: two steps made after the switch)
+# and 0 (one: the horizon comes one step after it).
+END_OFFSET_M = -3.5
 
 
 @pytest.fixture(scope="module")
@@ -72,8 +154,34 @@ def guided_batch(env):
     src = jnp.asarray([0, 1, 3, 0], jnp.int32)
     run = jax.jit(lambda rng: sweep.sweep_rollout(
         env, apply, params, rng, jnp.asarray(TRACK_IDS), src, pol.POLICY_INDEX["gaps"],
-        switch_max_m=0.9, steps_past=2, horizon=300, guide_scale=1.0))
+        switch_max_m=0.9, steps_past=2, horizon=300, guide_scale=1.0,
+        end_offset_m=END_OFFSET_M))
     return jax.device_get(run(jax.random.PRNGKey(3)))
+
+
+def _label_ref(contact, soles_x, art_end_x, t_switch, fell, success, done, horizon, steps_past=2):
+    """(label, control steps run, steps past the end) by a Python loop over the episode.
+
+    contact / soles_x: (T + 1, 8) sole flags and x of observation k; fell / success / done: (T,)
+    of the env step from observation k. Landings (a foot with no sole down in observation k - 1
+    and some in k, its centre past the end) count from the observation after the switch; a
+    landing of the same foot as the one before is no new step, both feet together are one."""
+    seq = []
+    for k in range(t_switch, horizon):
+        if k > t_switch:
+            down_now = contact[k].reshape(2, 4).max(axis=1) > 0.5
+            down_before = contact[k - 1].reshape(2, 4).max(axis=1) > 0.5
+            land = down_now & ~down_before & (soles_x[k].reshape(2, 4).mean(axis=1) > art_end_x)
+            if land.any():
+                seq.append("B" if land.all() else "LR"[int(np.argmax(land))])
+        steps = sum(1 for i, f in enumerate(seq) if f == "B" or i == 0 or seq[i - 1] != f)
+        if fell[k] > 0.5:
+            return False, k + 1, steps
+        if steps >= steps_past or success[k] > 0.5:
+            return True, k + 1, steps
+        if done[k] > 0.5:
+            return False, k + 1, steps
+    return False, horizon, steps
 
 
 def test_sweep_batch_window_and_label_against_reference_loop(env, fns, guided_batch):
@@ -83,17 +191,26 @@ def test_sweep_batch_window_and_label_against_reference_loop(env, fns, guided_ba
     info = dict(s.info)
     info["guide_scale"] = jnp.ones(B, jnp.float32)
     s = s.replace(info=info)
-    obs, x, fell = [np.asarray(s.obs)], [], []
+    sole_geoms = np.asarray(env.biped.sole_geoms).reshape(-1)
+    contact = slice(sweep.env_lib.STATE_SLICES["contact"].start,
+                    sweep.env_lib.STATE_SLICES["contact"].start + 8)
+    obs, x, fell, success, done = [np.asarray(s.obs)], [], [], [], []
+    soles_x = [np.asarray(s.pipeline_state.geom_xpos)[:, sole_geoms, 0]]
     start_x = np.asarray(s.info["start_x"])
     x.append(np.asarray(s.metrics["distance_m"]) + start_x)
     for _ in range(300):
         s = fns["step"](s, jnp.zeros((B, 12), jnp.float32))
         obs.append(np.asarray(s.obs))
+        soles_x.append(np.asarray(s.pipeline_state.geom_xpos)[:, sole_geoms, 0])
         x.append(np.asarray(s.metrics["distance_m"]) + start_x)
         fell.append(np.asarray(s.metrics["fell"]))
-    obs, x, fell = np.stack(obs), np.stack(x), np.stack(fell)
+        success.append(np.asarray(s.metrics["success"]))
+        done.append(np.asarray(s.done))
+    obs, x, fell, soles_x = np.stack(obs), np.stack(x), np.stack(fell), np.stack(soles_x)
+    success, done = np.stack(success), np.stack(done)
     a0 = np.asarray(s.info["art_x0"])[:, 0]
-    n_valid = 0
+    a1 = np.asarray(s.info["art_x1"])[:, 0]
+    n_valid, labels = 0, []
     for b in range(B):
         d = a0[b] - x[:, b]
         fell_at = int(np.argmax(fell[:, b] > 0.5)) + 1 if np.any(fell[:, b] > 0.5) else 10**9
@@ -106,9 +223,149 @@ def test_sweep_batch_window_and_label_against_reference_loop(env, fns, guided_ba
             continue
         n_valid += 1
         assert out["switch_dist_m"][b] == pytest.approx(d[t], abs=1e-4)
-        end = min(fell_at, len(obs) - 1)
-        np.testing.assert_allclose(out["window"][b], _window_ref(obs[:, b], t, end), atol=1e-4)
-        if out["label"][b]:  # success: no fall, and the CoM got past the artifact's end
-            a1 = np.asarray(s.info["art_x1"])[b, 0]
-            assert fell_at > out["steps"][b] and np.any(x[: out["steps"][b] + 1, b] > a1)
+        label, n_steps, steps_past = _label_ref(obs[:, b, contact], soles_x[:, b],
+                                                a1[b] + END_OFFSET_M, t, fell[:, b],
+                                                success[:, b], done[:, b], 300)
+        assert (bool(out["label"][b]), int(out["steps"][b]), int(out["steps_past"][b])) == (
+            label, n_steps, steps_past), b
+        labels.append(label)
+        # the window ends at the last observation acted on (the label, a fall or the horizon)
+        np.testing.assert_allclose(out["window"][b], _window_ref(obs[:, b], t, n_steps - 1),
+                                   atol=1e-4)
     assert n_valid >= 2  # the guided robot reaches the switch point on most tracks
+    assert set(labels) == {False, True}, labels  # both labels checked against the reference
+
+
+# ----------------------------------------------------------------------- resuming (no MJX)
+class _Clock:
+    """A fake time.perf_counter: setup costs 1 s, each batch 10 s."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def perf_counter(self):
+        return self.t
+
+
+@pytest.fixture
+def fake_sweep(monkeypatch):
+    """run_sweep with the env, the policies and the jitted batch replaced by stand-ins: track i
+    gives a valid sample unless i % 3 == 0, labelled i % 2 == 0. `calls` lists the batch index of
+    every batch run; `fail_at` makes the n-th batch call raise (an interrupted session)."""
+    clock, calls, fail_at = _Clock(), [], []
+    batch = 6
+
+    def make_env(target, init, n_tracks, difficulty):
+        clock.t += 1.0
+        return object()
+
+    def load_suite(init, env, runs, stand_in=None):
+        return pol.PolicySuite(None, None, tuple(f"ckpt_{n}" for n in pol.POLICY_NAMES))
+
+    def make_runner(env, apply, target, cfg, guide_scale=0.0):
+        def run(params, rng, ids, src):
+            ids = np.asarray(ids)
+            calls.append(int(ids[0]) // batch)  # ids = sample index while n_tracks >= samples
+            clock.t += 10.0
+            if fail_at and len(calls) == fail_at[0]:
+                raise KeyboardInterrupt
+            o = sweep.env_lib.STATE_SIZE + 4
+            return {"valid": ids % 3 != 0, "label": ids % 2 == 0, "source": np.asarray(src),
+                    "window": ids[:, None, None] + np.arange(5 * o).reshape(1, 5, o) / 1e3,
+                    "switch_dist_m": (ids % 90) / 100 + 0.005, "track_id": ids}
+        return run
+
+    monkeypatch.setattr(sweep, "time", type("T", (), {"perf_counter": clock.perf_counter}))
+    monkeypatch.setattr(sweep, "make_env", make_env)
+    monkeypatch.setattr(sweep.pol, "load_suite", load_suite)
+    monkeypatch.setattr(sweep, "make_runner", make_runner)
+
+    def cfg(n_points):
+        c = sweep.default_sweep_config()
+        c.n_points, c.batch = n_points, batch
+        return c
+
+    return {"calls": calls, "fail_at": fail_at, "cfg": cfg, "batch": batch}
+
+
+def _meta(path):
+    return json.loads((path / "meta.json").read_text())
+
+
+def test_resume_makes_only_missing_points_and_sums_wall_time(fake_sweep, tmp_path):
+    calls, cfg = fake_sweep["calls"], fake_sweep["cfg"]
+    # uninterrupted: 4 valid samples (20 points) per batch of 6, 50 points -> 3 batches
+    ref = sweep.run_sweep("stand", "gaps", cfg(50), tmp_path / "a", n_tracks=1000,
+                          print_fn=lambda *a: None)
+    assert calls == [0, 1, 2]
+    assert ref.points_new == 60 and ref.loop_s == 30 and ref.session_s == 31
+    assert (ref.steady_points, ref.steady_s) == (40, 20)
+    assert ref.wall_s_total == 31 and _meta(tmp_path / "a/stand/gaps")["wall_s_total"] == 31
+    # interrupted in its second batch: one part made, 11 s so far
+    calls.clear()
+    fake_sweep["fail_at"].append(2)
+    with pytest.raises(KeyboardInterrupt):
+        sweep.run_sweep("stand", "gaps", cfg(50), tmp_path / "b", n_tracks=1000)
+    part_dir = tmp_path / "b/stand/gaps"
+    assert len(list(part_dir.glob("part_*.npz"))) == 1
+    assert _meta(part_dir)["wall_s_total"] == 21  # setup 1 s, a part 10 s, a lost batch 10 s
+    # resumed: only the missing batches, then the same data as the uninterrupted sweep
+    calls.clear()
+    fake_sweep["fail_at"].clear()
+    run = sweep.run_sweep("stand", "gaps", cfg(50), tmp_path / "b", n_tracks=1000,
+                          print_fn=lambda *a: None)
+    assert calls == [1, 2]
+    assert run.points_new == 40 and run.loop_s == 20
+    assert (run.steady_points, run.steady_s) == (20, 10)
+    assert run.wall_s_total == 21 + 21 and _meta(part_dir)["wall_s_total"] == 42
+    a, b = sweep.load_data(ref.path), sweep.load_data(run.path)
+    for k in a:
+        if k != "meta":
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    assert len(a["label"]) == 60 and set(a["sample"][::5]) == {1, 2, 4, 5, 7, 8, 10, 11, 13,
+                                                              14, 16, 17}
+    # nothing missing: no batch, and no time added
+    calls.clear()
+    again = sweep.run_sweep("stand", "gaps", cfg(50), tmp_path / "b", n_tracks=1000)
+    assert calls == [] and again.points_new == 0 and again.wall_s_total == 42
+
+
+def test_resume_extends_to_more_points_and_refuses_other_track_banks(fake_sweep, tmp_path):
+    calls, cfg = fake_sweep["calls"], fake_sweep["cfg"]
+    sweep.run_sweep("stand", "jumps", cfg(30), tmp_path, n_tracks=1000)
+    assert calls == [0, 1]
+    calls.clear()
+    c = cfg(90)
+    c.lookup_bin_m = 0.02  # binning the merged data is no reason to refuse
+    run = sweep.run_sweep("stand", "jumps", c, tmp_path, n_tracks=1000)
+    assert calls == [2, 3, 4] and run.points_new == 60
+    assert len(sweep.load_data(run.path)["label"]) == 100
+    assert _meta(tmp_path / "stand/jumps")["config"]["n_points"] == 90
+    for kw, what in [({"n_tracks": 999}, "n_tracks"), ({"n_tracks": 1000, "seed": 1}, "seed")]:
+        with pytest.raises(RuntimeError, match=what):
+            sweep.run_sweep("stand", "jumps", cfg(200), tmp_path, **kw)
+    c = cfg(200)
+    c.switch_max_m = 0.5
+    with pytest.raises(RuntimeError, match="config.switch_max_m"):
+        sweep.run_sweep("stand", "jumps", c, tmp_path, n_tracks=1000)
+    assert calls == [2, 3, 4]
+
+
+def test_main_keeps_the_stats_of_targets_swept_before(fake_sweep, tmp_path):
+    out, res = tmp_path / "sweeps", tmp_path / "lookup"
+    argv = ["--points", "30", "--batch", "6", "--tracks", "1000", "--out", str(out),
+            "--results", str(res), "--targets"]
+    assert sweep.main(argv + ["jumps"]) == 0
+    first = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]
+    assert set(first) == {"jumps"}
+    j = first["jumps"]  # 2 batches of 20 points: 21 s in all, 20 s in the loop
+    assert (j["points"], j["points_new"], j["wall_s"], j["loop_s"]) == (40, 40, 21, 20)
+    assert j["points_per_s"] == 2.0 and j["points_per_s_steady"] == 2.0
+    # a later command sweeps gaps, then extends gaps: jumps' entry stays, gaps' time adds up
+    assert sweep.main(argv + ["gaps"]) == 0
+    assert sweep.main(argv[:1] + ["50"] + argv[2:] + ["gaps"]) == 0
+    sweeps = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]
+    assert set(sweeps) == {"jumps", "gaps"} and sweeps["jumps"] == j
+    g = sweeps["gaps"]
+    assert (g["points"], g["points_new"], g["wall_s"], g["loop_s"]) == (60, 20, 21 + 11, 10)
+    assert g["points_per_s"] == 2.0 and g["points_per_s_steady"] is None

@@ -3,6 +3,8 @@ selection, and the lookup-table argmax (pure functions; no environment)."""
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -204,3 +206,18 @@ def test_smoothed_success_pct_hand_values():
     np.testing.assert_allclose(out, [50.0, 50.0, 0.0])
     far = sw.smoothed_success_pct(np.array([1.0, np.nan, np.nan, np.nan]), np.array([1.0, 0, 0, 0]), 3)
     assert far[1] == 100.0 and np.isnan(far[2]) and np.isnan(far[3])  # no point within a bin
+
+
+def test_lookup_pairs_without_data_warn():
+    """A NaN entry (no sweep data for that pair) would silently mean 'switch at 0 m': say so. The
+    target's own policy (row k + 1, column k) never switches to itself, so its NaN is fine."""
+    table = np.full((sw.N_POLICIES, sw.N_TARGETS), 0.3)
+    table[np.arange(1, sw.N_POLICIES), np.arange(sw.N_TARGETS)] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rules = sw.make_rules("lookup", table)
+    np.testing.assert_array_equal(np.asarray(rules.lookup_m)[1, 0], 0.0)
+    table[0, 2] = np.nan  # walk -> stairs missing
+    with pytest.warns(UserWarning, match=r"1 pair\(s\).*\(0, 2\)"):
+        sw.make_rules("lookup", table)
+    sw.make_rules("detection", table)  # other methods never read the table: no warning

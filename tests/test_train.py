@@ -86,6 +86,7 @@ def test_train_chunk_checkpoint_and_resume(tmp_path):
     assert ckpt is not None and ckpt.name == f"{40:012d}"
     params, saved = train_lib.load_checkpoint(ckpt)
     assert saved["curriculum"] == prog["curriculum"]
+    assert saved["total_steps"] == 40  # the goal, so Table III can tell a finished run
     leaves = jax.tree.leaves(params)
     assert leaves and all(np.all(np.isfinite(np.asarray(x))) for x in leaves)
     assert (tmp_path / "config.json").exists() and json.loads((tmp_path / "config.json").read_text())
@@ -96,7 +97,7 @@ def test_train_chunk_checkpoint_and_resume(tmp_path):
     cfg.total_timesteps = 80
     prog2 = train_lib.train(cfg, tmp_path, env_fn=env_fn, print_fn=lines.append)
     assert any(line.startswith("resuming") for line in lines)
-    assert prog2["step"] == 80
+    assert prog2["step"] == 80 and prog2["total_steps"] == 80
     assert float(seen[-1].difficulty) == pytest.approx(0.1)
     assert prog2["curriculum"]["difficulty"] == pytest.approx(0.2)
     rows = (tmp_path / "metrics.csv").read_text().splitlines()

@@ -5,9 +5,16 @@ Every notebook reads saved results from one results root:
     RESULTS = $BIPED_RESULTS, or <repo>/experiments/results when unset
 
 laid out as the package's CLIs write it (table1/, table2/, table3/, lookup/, estimators/,
-training/). A missing input raises `MissingResult`, whose message names the command that makes
-it; nothing is skipped silently. Nothing here imports the MJX environment or compiles JAX code:
-the notebooks only read files (and the terrain generator, which is plain numpy).
+training/). Policy training runs are read from the runs root (`runs_root`, `run_roots`):
+
+    RUNS = $BIPED_RUNS, else <repo>/runs (where `python -m biped_switch.train`, `make train-all`
+           and `make reproduce` write; evaluate.find_policy looks there, then in models/policies/),
+           and for a pipeline-check results root models/pipeline_check (the runs it was made from)
+
+A missing input raises `MissingResult`, whose message names the command that makes it; nothing is
+skipped silently. Nothing here builds an environment, steps the simulator or compiles JAX code:
+the notebooks only read files (and the terrain generator, which is plain numpy). The tables import
+`biped_switch.evaluate` for the paper's values, which imports JAX and MuJoCo-MJX.
 """
 
 from __future__ import annotations
@@ -37,11 +44,16 @@ REPO = _find_repo()
 NB_DIR = REPO / "experiments" / "notebooks"
 DEFAULT_RESULTS = REPO / "experiments" / "results"
 PIPELINE_CHECK = DEFAULT_RESULTS / "pipeline_check"
+DEFAULT_RUNS = REPO / "runs"  # where train, make train-all and make reproduce write their runs
+PIPELINE_MODELS = REPO / "models" / "pipeline_check"  # the pipeline check's runs (not trained)
+POLICY_DIR = REPO / "models" / "policies"  # committed trained policies (find_policy's 2nd place)
+BASELINE_DIR = REPO / "models" / "baselines"  # committed DQN runs (find_dqn's 2nd place)
 if str(REPO) not in sys.path:  # biped_switch importable even without `pip install -e .`
     sys.path.insert(0, str(REPO))
 
 PAPER_TRIALS = {"table1": 500, "table2": 2500}  # trials per row in the paper
 PAPER_SWEEP_POINTS = 100_000  # switch-sweep data points per target in the paper
+PAPER_ARTIFACTS = 7  # artifacts per test track in the paper
 PAPER_TABLE3 = {"dqn": 25.0, "end_to_end": 34.0, "ours": 20.0}  # hours (Tidd et al., Table III)
 METHOD_LABELS = {"random": "Random", "detection": "On detection", "lookup": "Lookup table",
                  "com_over_feet": "CoM over feet", "estimator": "Ours (estimator)",
@@ -56,6 +68,42 @@ def results_root() -> pathlib.Path:
         return DEFAULT_RESULTS
     p = pathlib.Path(env).expanduser()
     return p if p.is_absolute() else (REPO / p)
+
+
+def is_pipeline_check(path) -> bool:
+    """Whether `path` lies in a pipeline-check tree (experiments/results/pipeline_check,
+    models/pipeline_check, or any other folder named pipeline_check)."""
+    return "pipeline_check" in pathlib.Path(path).resolve().parts
+
+
+def _env_path(name: str) -> pathlib.Path | None:
+    env = os.environ.get(name)
+    if not env:
+        return None
+    p = pathlib.Path(env).expanduser()
+    return p if p.is_absolute() else (REPO / p)
+
+
+def runs_root(results=None) -> pathlib.Path:
+    """The runs folder a results root was (or is to be) made from: $BIPED_RUNS (relative paths
+    from the repository root); else models/pipeline_check for a pipeline-check `results`; else
+    <repo>/runs, where `train` writes (find_policy then also looks in models/policies/)."""
+    env = _env_path("BIPED_RUNS")
+    if env is not None:
+        return env
+    if results is not None and is_pipeline_check(results):
+        return PIPELINE_MODELS
+    return DEFAULT_RUNS
+
+
+def run_roots(results=None) -> list[pathlib.Path]:
+    """Every folder searched for training runs: [$BIPED_RUNS] when set, else <repo>/runs and, for
+    a pipeline-check `results`, models/pipeline_check."""
+    env = _env_path("BIPED_RUNS")
+    if env is not None:
+        return [env]
+    return [DEFAULT_RUNS] + ([PIPELINE_MODELS] if results is not None and is_pipeline_check(results)
+                             else [])
 
 
 class MissingResult(FileNotFoundError):
@@ -120,8 +168,7 @@ def table1_command(results: pathlib.Path, settings: dict | None = None) -> list[
 def table2_command(results: pathlib.Path, settings: dict | None = None) -> list[str]:
     argv = ["-m", "biped_switch.evaluate", "multi", "--out", rel(results / "table2"),
             "--lookup", rel(results / "lookup")]
-    return argv + _carry(settings, ("methods", "trials", "batch", "horizon_s", "seed", "runs",
-                                    "estimators", "stand_in", "guide_scale", "fig5_trial"))
+    return argv + _carry(settings, MULTI_KEYS)
 
 
 def fig5_command(results: pathlib.Path, trial: int = 0, settings: dict | None = None) -> list[str]:
@@ -130,16 +177,25 @@ def fig5_command(results: pathlib.Path, trial: int = 0, settings: dict | None = 
     s.update(methods=["estimator"], trials=trial + 1, batch=trial + 1, fig5_trial=trial)
     argv = ["-m", "biped_switch.evaluate", "multi", "--out", rel(results / "fig5"),
             "--lookup", rel(results / "lookup")]
-    return argv + _carry(s, ("methods", "trials", "batch", "horizon_s", "seed", "runs",
-                             "estimators", "stand_in", "guide_scale", "fig5_trial"))
+    return argv + _carry(s, MULTI_KEYS)
 
 
-def table3_command(results: pathlib.Path) -> list[str]:
-    return ["-m", "biped_switch.evaluate", "retrain-cost", "--out", rel(results / "table3")]
+MULTI_KEYS = ("methods", "trials", "batch", "horizon_s", "n_artifacts", "seed", "runs", "estimators",
+              "dqn", "stand_in", "guide_scale", "fig5_trial")  # evaluate multi's recorded settings
 
 
-def lookup_command(results: pathlib.Path, init: str = "stand") -> list[str]:
-    return ["-m", "biped_switch.sweep", "--init", init, "--results", rel(results / "lookup")]
+def table3_command(results: pathlib.Path, runs=None, init: str = "stand") -> list[str]:
+    """retrain-cost reading the runs in `runs` (default `runs_root(results)`) and the sweeps and
+    estimators of `results`, writing <results>/table3: the same root the notebook reads."""
+    runs = runs_root(results) if runs is None else pathlib.Path(runs)
+    return ["-m", "biped_switch.evaluate", "retrain-cost", "--runs", rel(runs),
+            "--results", rel(results), "--init", init, "--out", rel(results / "table3")]
+
+
+def lookup_command(results: pathlib.Path, init: str = "stand", runs=None) -> list[str]:
+    runs = runs_root(results) if runs is None else pathlib.Path(runs)
+    return ["-m", "biped_switch.sweep", "--init", init, "--runs", rel(runs),
+            "--results", rel(results / "lookup")]
 
 
 def estimator_command(results: pathlib.Path, init: str = "stand") -> list[str]:
@@ -147,9 +203,11 @@ def estimator_command(results: pathlib.Path, init: str = "stand") -> list[str]:
             rel(results / "estimators")]
 
 
-def train_command(results: pathlib.Path, policy: str = "walk", init: str = "stand") -> list[str]:
-    return ["-m", "biped_switch.train", "--policy", policy, "--init", init, "--out",
-            rel(results / "training")]
+def train_command(runs=None, policy: str = "walk", init: str = "stand") -> list[str]:
+    """Training of one policy into <runs>/<policy>_<init> (default `runs_root()`: runs/, where
+    evaluate.find_policy looks; a rerun resumes from the run's latest checkpoint)."""
+    runs = runs_root() if runs is None else pathlib.Path(runs)
+    return ["-m", "biped_switch.train", "--policy", policy, "--init", init, "--out", rel(runs)]
 
 
 def _carry(settings: dict | None, keys: Iterable[str]) -> list[str]:
@@ -178,9 +236,11 @@ def pipeline_label(doc: dict) -> str | None:
     return None
 
 
-def _conclude(doc: dict, reasons: list[str], rows=None, table: str = "", per: str = "") -> list[str]:
+def _conclude(doc: dict, reasons: list[str], rows=None, table: str = "", per: str = "",
+              ok: str | None = None) -> list[str]:
     """Adds the file's own pipeline-check label (and, for a table's `rows`, too few trials per
-    `per` against the paper) to `reasons`, prints the verdict line and returns the reasons."""
+    `per` against the paper) to `reasons`, prints the verdict line (`ok`: its text when there is
+    no reason) and returns the reasons."""
     if rows is not None:
         n = min((r["n"] for r in rows), default=0)
         if n < PAPER_TRIALS[table]:
@@ -189,15 +249,16 @@ def _conclude(doc: dict, reasons: list[str], rows=None, table: str = "", per: st
     if lab:
         print(f"  labelled PIPELINE_CHECK: {lab}")
         reasons.insert(0, f"labelled so ({lab})")
-    print(verdict(reasons))
+    print(verdict(reasons, ok))
     return reasons
 
 
-def verdict(reasons: list[str]) -> str:
+def verdict(reasons: list[str], ok: str | None = None) -> str:
     """One line saying whether the file is a pipeline check or can be read as a result."""
     if reasons:
         return "VERDICT: PIPELINE CHECK, not a result: " + "; ".join(reasons) + "."
-    return "VERDICT: no pipeline-check markers (no stand-ins, no guide forces, the paper's trial count)."
+    return "VERDICT: " + (ok or "no pipeline-check markers (no stand-ins, no guide forces, the "
+                          "paper's trial count).")
 
 
 def _fmt(v) -> str:
@@ -235,9 +296,11 @@ def provenance_table1(doc: dict, path) -> list[str]:
 def provenance_table2(doc: dict, path) -> list[str]:
     s, rows = doc.get("settings", {}), doc["rows"]
     print(f"file: {rel(path)}")
-    for k in ("trials", "seed", "horizon_s", "stand_in", "guide_scale", "runs", "estimators",
-              "lookup"):
+    for k in ("trials", "seed", "horizon_s", "n_artifacts", "stand_in", "guide_scale", "runs",
+              "estimators", "dqn", "lookup"):
         print(f"  {k}: {_fmt(s.get(k))}")
+    for sk in doc.get("skipped") or []:
+        print(f"  not run: {sk}")
     print(f"  device: {_fmt(doc.get('device'))}   track_seed: {_fmt(doc.get('track_seed'))}   "
           f"wall: {_fmt(round(doc['wall_s'])) if doc.get('wall_s') is not None else 'not recorded'} s")
     reasons, seen, subs = [], set(), {}
@@ -258,6 +321,11 @@ def provenance_table2(doc: dict, path) -> list[str]:
         reasons.append(f"--stand-in {s['stand_in']}")
     if (s.get("guide_scale") or 0) > 0:
         reasons.append(f"scripted guide forces on (guide_scale {s['guide_scale']:g})")
+    if s.get("n_artifacts") not in (None, PAPER_ARTIFACTS):
+        reasons.append(f"{s['n_artifacts']} artifacts per track (paper: {PAPER_ARTIFACTS})")
+    mismatch = sorted({x for r in rows for x in (r.get("policies") or ()) if "MISMATCH" in str(x)})
+    if mismatch:
+        reasons.append("DQN selector trained with other policies than those evaluated")
     return _conclude(doc, reasons, rows, "table2", "method")
 
 
@@ -376,21 +444,118 @@ def _hours(v) -> str:
     return f"{v:.2f} ({60 * v:.1f} min)" if v >= 1 / 60 else f"{v:.4f} ({3600 * v:.1f} s)"
 
 
-def table3_rows(doc: dict):
-    """Per method: total hours (n/a unless every part was measured), the measured parts' sum."""
-    headers = ["method", "our hours", "measured parts (sum)", "parts not measured", "paper hours",
-               "device"]
+def table3_rows(doc: dict, checks: dict | None = None):
+    """Per method: total hours (n/a unless every part was measured), the measured parts' sum; with
+    `checks` (table3_checks), a column saying whether the hours come from complete real runs."""
+    headers = ["method", "our hours"] + (["hours from"] if checks is not None else []) + [
+        "measured parts (sum)", "parts not measured", "paper hours", "device"]
     rows = []
     for r in doc["rows"]:
         paper = r.get("paper_hours", PAPER_TABLE3.get(r["method"]))
         parts = r.get("parts") or {}
         known = [v for v in parts.values() if v is not None]
-        rows.append([r["method"], _hours(r.get("hours")),
+        src = []
+        if checks is not None:
+            notes = checks.get(r["method"]) or []
+            src = ["-" if not known and r.get("hours") is None else
+                   "PIPELINE CHECK" if any("pipeline" in n for n in notes) else
+                   "UNFINISHED RUNS" if notes else "complete runs"]
+        rows.append([r["method"], _hours(r.get("hours"))] + src + [
                      (f"{len(known)}/{len(parts)}" + (f" ({_hours(sum(known))})" if known else ""))
                      if parts else "-",
                      ", ".join(k for k, v in parts.items() if v is None) or "-",
                      "-" if paper is None else f"{paper:g}", r.get("device") or "not recorded"])
     return headers, rows
+
+
+def _repo_path(p) -> pathlib.Path:
+    p = pathlib.Path(p).expanduser()
+    return p if p.is_absolute() else REPO / p
+
+
+def table3_checks(doc: dict, results, runs=None) -> tuple[pathlib.Path, dict]:
+    """(the runs root, {method: notes}) of a Table III file: why each method's measured hours are
+    not those of complete, real training runs ([] when they are, or when nothing was measured).
+
+    A row's notes are its recorded `status` when the file has one for it (retrain-cost writes it;
+    "not measured" does not count), else the `run_notes` of the runs behind its measured parts, found again as retrain-cost finds them
+    (evaluate.find_policy / find_dqn) under the file's recorded runs root, else `runs`, else
+    `runs_root(results)`. Sweep and estimator hours of a pipeline-check results root, or of
+    sweeps smaller than the paper's, are noted too."""
+    results = pathlib.Path(results)
+    init = doc.get("init") or "stand"
+    if doc.get("runs"):
+        runs = _repo_path(doc["runs"])
+    else:
+        runs = runs_root(results) if runs is None else pathlib.Path(runs)
+    pols = [find_run(f"{k}_{init}", runs) for k in ("jumps", "gaps", "stairs")]
+    deps = {"new policy": pols, "selector": [find_dqn_run(runs, init)],
+            "policy": [find_run(f"mixed_{init}", runs)]}
+    lookup = results / "lookup" / f"lookup_{init}.json"
+    try:
+        sweeps = (json.loads(lookup.read_text()).get("meta") or {}).get("sweeps") or {}
+    except (OSError, ValueError):
+        sweeps = {}
+    checks = {}
+    for r in doc["rows"]:
+        parts, notes = r.get("parts") or {}, []
+        measured = [k for k, v in parts.items() if v is not None]
+        if not measured and r.get("hours") is None:
+            checks[r["method"]] = notes
+            continue
+        status = r.get("status")  # "not measured" (a part missing) says nothing about the others
+        own = status in (None, "not measured")
+        if not own and status != "complete":
+            notes += [n.strip() for n in str(status).split(";") if n.strip()]
+        if own and not parts:
+            notes.append("no parts recorded: its runs cannot be checked")
+        for k in measured:
+            if k in deps and own:
+                found = [d for d in deps[k] if d is not None]
+                if not found:
+                    notes.append(f"{k}: no run under {rel(runs)}/ or models/ (cannot tell whether "
+                                 "it finished)")
+                notes += [f"{d.name}: {n}" for d in found for n in run_notes(d)]
+            if k.startswith(("sweep", "estimator")) and is_pipeline_check(results):
+                notes.append(f"{k}: from a pipeline-check results root")
+            if k.startswith("sweep ") and k[6:] in sweeps:
+                n_pts = sweeps[k[6:]].get("points", 0)
+                if n_pts < PAPER_SWEEP_POINTS:
+                    notes.append(f"{k}: {n_pts:,} points (paper: {PAPER_SWEEP_POINTS:,})")
+        checks[r["method"]] = list(dict.fromkeys(notes))
+    return runs, checks
+
+
+def provenance_table3(doc: dict, path, results, runs=None) -> list[str]:
+    """Prints where each method's hours come from (runs, their steps and curriculum, devices, the
+    parts not measured) and the verdict: complete real training runs, or a pipeline check /
+    unfinished runs / missing parts."""
+    results = pathlib.Path(results)
+    runs, checks = table3_checks(doc, results, runs)
+    print(f"file: {rel(path)}   init: {doc.get('init', 'not recorded')}")
+    print(f"  runs: {rel(runs)}" + ("" if doc.get("runs") else
+                                   " (not recorded in the file: the runs root of the recompute "
+                                   "command)"))
+    print(f"  results: {_fmt(doc.get('results'))}   notes: {doc.get('notes') or 'none recorded'}")
+    for r in doc["rows"]:
+        print(f"  {r['method']}: {_hours(r.get('hours'))} h on {r.get('device') or 'not recorded'}, "
+              f"status {r.get('status', 'not recorded')}")
+        for n in checks.get(r["method"]) or []:
+            print(f"    - {n}")
+    for m in doc.get("missing") or []:
+        print("  missing:", m)
+    reasons = []
+    if is_pipeline_check(results):
+        reasons.append(f"the results root {rel(results)} is a pipeline check")
+    flagged = [m for m, n in checks.items() if n]
+    if flagged:
+        reasons.append("hours of " + ", ".join(flagged) + " are from pipeline-check, unfinished or "
+                       "unverified runs (listed above), not complete training runs")
+    incomplete = [r["method"] for r in doc["rows"] if r.get("hours") is None]
+    if incomplete:
+        reasons.append("no total hours for " + ", ".join(incomplete) + " (parts not measured)")
+    return _conclude(doc, reasons, ok="every method's hours come from complete training runs "
+                     "(step goal reached, curriculum finished), outside any pipeline check.")
 
 
 def table3_parts_rows(doc: dict):
@@ -480,8 +645,9 @@ def plot_table2(doc: dict, title: str = ""):
     for j, (k, pi, col) in enumerate(kinds):
         o = [ours[m]["fail_on"][k] if m in ours else np.nan for m in methods]
         n = [ours[m]["n"] if m in ours else 0 for m in methods]
-        # Wilson interval of each failure proportion
-        ci = [_wilson_pct(v, nn) for v, nn in zip(o, n)]
+        # Wilson interval of each failure proportion (as recorded, else from the rate and n)
+        ci = [(ours[m].get("fail_ci") or {}).get(k) or _wilson_pct(v, nn) if m in ours else None
+              for m, v, nn in zip(methods, o, n)]
         xo = x + (2 * j - 2.5) * w
         ax.bar(xo, np.nan_to_num(o), w, yerr=_yerr(np.nan_to_num(o), ci), capsize=2, color=col,
                label=f"ours: {k}")
@@ -632,6 +798,18 @@ def load_trial(path) -> dict:
     return rec
 
 
+def trial_track(track_seed: int, n_artifacts: int | None = None):
+    """The `mixed` track of a Table II trial (evaluate.trial_track): `n_artifacts` per track as
+    recorded in the run's settings (None: the default 7)."""
+    from biped_switch import terrain
+    from biped_switch.config import default_terrain_config
+
+    cfg = default_terrain_config()
+    if n_artifacts is not None:
+        cfg.n_artifacts = int(n_artifacts)
+    return terrain.generate_track(int(track_seed), "mixed", 1.0, cfg)
+
+
 def trial_length(rec: dict) -> int:
     live = np.flatnonzero(np.asarray(rec["ended"]) < 0.5)
     return int(live[-1]) + 1 if len(live) else 1
@@ -752,12 +930,81 @@ def read_csv(path) -> dict:
     return {c: np.array([num(r.get(c)) for r in rows]) for c in cols}
 
 
-def find_training_runs(results: pathlib.Path, extra: Sequence = ()) -> list[pathlib.Path]:
-    """Run folders with a metrics.csv: <results>/training/*/, <results>/training_*/ and `extra`."""
-    dirs = sorted({p.parent for p in results.glob("training/*/metrics.csv")}
-                  | {p.parent for p in results.glob("training_*/metrics.csv")}
-                  | {pathlib.Path(e) for e in extra if (pathlib.Path(e) / "metrics.csv").is_file()})
-    return dirs
+def find_training_runs(results: pathlib.Path, roots: Sequence | None = None,
+                       extra: Sequence = ()) -> list[pathlib.Path]:
+    """Run folders with a metrics.csv: <root>/*/ for each of `roots` (default `run_roots(results)`:
+    runs/, where train writes), <results>/training/*/, <results>/training_*/ and `extra`."""
+    roots = run_roots(results) if roots is None else roots
+    found = ({p.parent for p in results.glob("training/*/metrics.csv")}
+             | {p.parent for p in results.glob("training_*/metrics.csv")}
+             | {p.parent for r in roots for p in pathlib.Path(r).glob("*/metrics.csv")}
+             | {pathlib.Path(e) for e in extra if (pathlib.Path(e) / "metrics.csv").is_file()})
+    return sorted({d.resolve(): d for d in found}.values())
+
+
+def latest_checkpoint(run_dir) -> pathlib.Path | None:
+    """train.latest_checkpoint: the run's last checkpoints/<12 digits>/ with a progress.json."""
+    ckpts = sorted(p for p in (pathlib.Path(run_dir) / "checkpoints").glob("[0-9]" * 12)
+                   if (p / "progress.json").is_file())
+    return ckpts[-1] if ckpts else None
+
+
+def find_run(name: str, runs) -> pathlib.Path | None:
+    """evaluate.find_policy's search, as a run folder: <runs>/<name>, then models/policies/<name>."""
+    for base in (_repo_path(runs), POLICY_DIR):
+        if latest_checkpoint(base / name) is not None:
+            return base / name
+    return None
+
+
+def find_dqn_run(runs, init: str = "stand") -> pathlib.Path | None:
+    """evaluate.find_dqn's search: <runs>/dqn_<init>, then models/baselines/dqn_<init>."""
+    for d in (_repo_path(runs) / f"dqn_{init}", BASELINE_DIR / f"dqn_{init}"):
+        if latest_checkpoint(d) is not None:
+            return d
+    return None
+
+
+def _read_json(path) -> dict:
+    try:
+        return json.loads(pathlib.Path(path).read_text())
+    except (OSError, ValueError):  # absent, or being written by a running job
+        return {}
+
+
+def run_notes(run_dir) -> list[str]:
+    """Why a run is not a finished, real training run ([] if nothing says so): it lies in a
+    pipeline_check folder; its latest checkpoint is short of the step goal (progress.json's
+    total_steps / total_env_steps, else config.json's); its curriculum is unfinished (guide forces
+    on or difficulty below 1; from progress.json, else the last values in metrics.csv); a DQN
+    selector chose among stand-in policies."""
+    d = pathlib.Path(run_dir)
+    notes = ["a pipeline check"] if is_pipeline_check(d) else []
+    ck = latest_checkpoint(d)
+    prog = _read_json(ck / "progress.json") if ck else {}
+    cfg = _read_json(d / "config.json")
+    step = prog.get("step")
+    total = next((v for v in (prog.get("total_steps"), prog.get("total_env_steps"),
+                              cfg.get("total_timesteps"), cfg.get("total_env_steps")) if v), None)
+    if step is not None and total is not None and int(step) < int(total):
+        notes.append(f"at step {int(step):,} of {int(total):,}")
+    c = prog.get("curriculum")
+    if c is None and (d / "metrics.csv").is_file():
+        m = read_csv(d / "metrics.csv")
+        c = {k: float(series(m, k)[1][-1]) for k in ("difficulty", "guide_scale")
+             if len(series(m, k)[1])}
+    g, dif = (c or {}).get("guide_scale"), (c or {}).get("difficulty")
+    if (g is not None and g > 1e-6) or (dif is not None and dif < 1 - 1e-6):
+        notes.append(f"curriculum unfinished ({c.get('stage_name', 'last logged')} d={_fmt(dif)}, "
+                     f"guide_scale {_fmt(g)})")
+    if prog.get("stand_in") or stand_ins(prog.get("policies") or ()):
+        notes.append(f"chose among stand-in policies ({prog.get('stand_in') or 'see progress.json'})")
+    return notes
+
+
+def training_checks(runs: Sequence[pathlib.Path]) -> list[str]:
+    """Verdict reasons of the training-curves notebook: each run's `run_notes`."""
+    return [f"{run_name(d)}: {', '.join(n)}" for d in runs if (n := run_notes(d))]
 
 
 def run_name(d: pathlib.Path) -> str:
@@ -769,7 +1016,7 @@ def run_name(d: pathlib.Path) -> str:
 
 
 def series(m: dict, key: str):
-    if key not in m:
+    if key not in m or "step" not in m:
         return np.zeros(0), np.zeros(0)
     ok = np.isfinite(m[key]) & np.isfinite(m["step"])
     return m["step"][ok], m[key][ok]
@@ -782,13 +1029,15 @@ def training_rows(runs: Sequence[pathlib.Path]):
     for d in runs:
         m = read_csv(d / "metrics.csv")
         last = lambda k: (series(m, k)[1][-1] if len(series(m, k)[1]) else math.nan)  # noqa: E731
+        num = lambda v, f: "-" if not math.isfinite(v) else format(v, f)  # noqa: E731
         prog = sorted(d.glob("progress*.json")) + sorted(d.glob("checkpoints/*/progress.json"))
-        dev = json.loads(prog[-1].read_text()).get("device", "?") if prog else "not recorded"
-        wall = last("wall_s")
-        rows.append([run_name(d), f"{int(np.nanmax(m['step'])):,}", f"{wall / 3600:.2f}",
-                     f"{last('episode/sum_reward'):.1f}", f"{last('eval/reward_per_step'):.2f}",
-                     f"{last('difficulty'):.2f}", f"{last('guide_scale'):.2f}",
-                     f"{last('push_scale'):.2f}", dev])
+        dev = _read_json(prog[-1]).get("device", "?") if prog else "not recorded"
+        steps = m.get("step", np.zeros(0))
+        steps = steps[np.isfinite(steps)]
+        rows.append([run_name(d), f"{int(steps.max()):,}" if len(steps) else "-",
+                     num(last("wall_s") / 3600, ".2f"), num(last("episode/sum_reward"), ".1f"),
+                     num(last("eval/reward_per_step"), ".2f"), num(last("difficulty"), ".2f"),
+                     num(last("guide_scale"), ".2f"), num(last("push_scale"), ".2f"), dev])
     return headers, rows
 
 
@@ -836,7 +1085,8 @@ def plot_training_run(run_dir: pathlib.Path):
             axes[2].step(x, y, where="post", label=key)
     axes[2].set_ylim(-0.05, 1.05)
     axes[2].set_title("curriculum", fontsize=10)
-    axes[2].legend(fontsize=8)
+    if axes[2].get_legend_handles_labels()[0]:  # a DQN run logs no curriculum
+        axes[2].legend(fontsize=8)
     for ax in axes:
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)

@@ -1,0 +1,62 @@
+"""Offscreen rendering: the frames show the robot and the track, not empty sky."""
+
+from __future__ import annotations
+
+import ctypes.util
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from biped_switch import render, terrain
+
+
+def test_track_boxes_drops_padding_rows():
+    far = [terrain.FAR_X_M, 0.0, 0.5, 0.1, 0.1, 0.1]  # padding artifact slot
+    parked = [0.0, 0.0, terrain.PARK_Z_M, 0.1, 0.1, 0.1]  # a hole's box, parked below
+    real = [[1.0, 0.0, -0.05, 0.5, 0.7, 0.05], [2.2, 0.0, 0.1, 0.2, 0.7, 0.2]]
+    out = render.track_boxes(np.array([real[0], far, parked, real[1]]))
+    np.testing.assert_array_equal(out, real)
+
+
+_SCRIPT = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    from biped_switch import render
+    render._gl_default()
+    from biped_switch import model as model_lib, terrain
+    from biped_switch.config import default_model_config
+    track = terrain.generate_track(30000, "mixed", 1.0)
+    cap = default_model_config().box_capacity
+    pad = np.tile([[terrain.FAR_X_M, 0, terrain.PARK_Z_M, 0.1, 0.1, 0.1]], (cap - len(track.boxes), 1))
+    m = model_lib.compile_mj_model(None, track.boxes)
+    q0 = m.key_qpos[0].copy()
+    q1 = q0.copy(); q1[0] += 1.0  # the robot 1 m further on: the camera follows, the track moves
+    ims = render.frames(np.stack([q0, q1]), np.concatenate([track.boxes, pad]), 160, 120, every=1)
+    px = [im.reshape(-1, 3).astype(int) for im in ims]
+    sky = np.median(px[0][:160], axis=0)  # the top row is sky
+    print(json.dumps({"n": len(ims), "shape": list(ims[0].shape),
+                      "non_sky": [float((np.abs(p - sky).sum(1) > 60).mean()) for p in px],
+                      "differ": float(np.abs(px[0] - px[1]).sum(1).mean())}))
+""")
+
+
+@pytest.mark.skipif(not (ctypes.util.find_library("OSMesa") or os.path.exists("/dev/nvidia0")),
+                    reason="no OpenGL backend (make render-deps installs OSMesa)")
+def test_frames_show_the_robot_and_track():
+    """The env pads its box slots with rows at x = 1e6; they once stretched the model's extent
+    (so the near plane) to kilometres and every frame was sky. Runs in a subprocess: MUJOCO_GL
+    must be set before mujoco is first imported."""
+    import json
+
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    r = subprocess.run([sys.executable, "-c", _SCRIPT], capture_output=True, text=True, env=env,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["n"] == 2 and out["shape"] == [120, 160, 3]
+    assert all(f > 0.2 for f in out["non_sky"]), out  # robot and terrain fill a good part
+    assert out["differ"] > 1.0, out  # consecutive frames are not the same picture
