@@ -494,3 +494,21 @@ def test_notebook_without_data_fails_naming_the_command(name, tmp_path, kernel_e
         run_notebook(name, tmp_path, kernel_env, monkeypatch, runs=tmp_path / "runs")
     msg = str(e.value)
     assert "MissingResult" in msg and INPUTS[name][1] in msg, msg[-2000:]
+
+
+def test_cli_and_notebook_draw_the_same_fig5(tmp_path):
+    """One Fig. 5 for `evaluate multi`, the demo and the notebook: the PNG the CLI saves comes from
+    the figure the notebook shows (estimates, active-policy strip, heights)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from biped_switch import evaluate, terrain
+
+    rec = _trace(30_000)
+    track = terrain.generate_track(30_000, "mixed", 1.0)
+    fig = C.plot_fig5(rec, track, "t")
+    assert len(fig.axes) == 3  # estimates, active policy, heights
+    labels = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+    assert {"E_jumps", "E_gaps", "E_stairs", "walk", "left foot", "CoM over feet"} <= set(labels)
+    evaluate.plot_trial(rec, track, tmp_path / "f.png", "t")
+    assert (tmp_path / "f.png").stat().st_size > 20_000
