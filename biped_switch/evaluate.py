@@ -367,6 +367,9 @@ def table2_markdown(rows: list[dict]) -> str:
 
 
 def trace_trial(setup: "MultiSetup", method: str, trial: int, seed: int) -> dict:
+    """Per-step record of trial `trial` (Fig. 5). A stand-init reset on a given track uses no
+    randomness, so this is the trial of the table; a random-init trace draws its own start joints
+    (key seed + trial), and the `random` rule its own distances."""
     from biped_switch import switching as sw
 
     rules = sw.make_rules(method, lookup_m=setup.lookup_m)
