@@ -4,8 +4,8 @@ With the committed policies (models/policies/), switch estimators (models/estima
 table (experiments/results/lookup/), runs every switching method, and the DQN and end-to-end
 baselines where they are trained (models/baselines/dqn_stand, models/policies/mixed_stand), on the
 same two dozen short `mixed` tracks (2 artifacts of different kinds, so that a good policy can
-finish within a time limit a 2-core CPU can afford in under 10 minutes), prints Table II, draws the paper's Fig. 5 for one trial of the estimator
-method and renders that trial to a GIF (offscreen MuJoCo; skipped with a message when no OpenGL
+finish within a time limit a 2-core CPU can afford in under 10 minutes), prints Table II, draws
+the paper's Fig. 5 for one trial of the estimator method and renders that trial to a GIF (offscreen MuJoCo; skipped with a message when no OpenGL
 backend is available). Everything goes to experiments/results/demo/.
 
 It reports honestly what it ran on: the provenance of every policy is printed and saved, and
@@ -28,7 +28,7 @@ from biped_switch import render
 
 render._gl_default()  # the GL backend is fixed when mujoco is first imported: before evaluate's
 
-from biped_switch import evaluate, terrain  # noqa: E402
+from biped_switch import evaluate  # noqa: E402
 from biped_switch import policies as pol  # noqa: E402
 
 
@@ -124,12 +124,10 @@ def main(argv=None) -> int:
 def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
     """Time limit [s] that lets a robot walking at the target speed finish the longest of the
     demo's tracks with `margin` to spare (after the 0.5 s standing pause)."""
-    from biped_switch.config import default_env_config, default_terrain_config
+    from biped_switch.config import default_env_config
 
-    tcfg = default_terrain_config()
-    tcfg.n_artifacts = n_artifacts
-    finish_m = max(terrain.generate_track(evaluate.MULTI_TRACK_SEED + i, "mixed", 1.0, tcfg).artifacts[-1][2]
-                   for i in range(trials)) + tcfg.finish_after_m
+    finish_m = max(evaluate.mixed_track(evaluate.MULTI_TRACK_SEED + i, n_artifacts).finish_x_m
+                   for i in range(trials))
     ecfg = default_env_config()
     return float(np.ceil(ecfg.pause_s + margin * finish_m / ecfg.target_speed_mps))
 

@@ -39,6 +39,7 @@ import numpy as np
 
 from biped_switch import env as env_lib
 from biped_switch import train as train_lib
+from biped_switch.model import MODELS_DIR
 from biped_switch.rollout import rollout
 
 PAPER_TABLE1 = {  # % total distance, % success: stand init / random init (Tidd et al., Table I)
@@ -85,7 +86,7 @@ def episode_table(result: dict) -> dict:
 
 
 def find_policy(policy: str, init: str, runs: pathlib.Path) -> pathlib.Path | None:
-    for base in (runs, pathlib.Path("models/policies")):
+    for base in (runs, POLICY_DIR):
         ckpt = train_lib.latest_checkpoint(base / f"{policy}_{init}")
         if ckpt is not None:
             return ckpt
@@ -152,7 +153,8 @@ SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
                   "estimator_no_overlap")
 BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain (issue 5)
 MULTI_METHODS = SWITCH_METHODS + BASELINES
-BASELINE_DIR = pathlib.Path("models/baselines")  # committed DQN runs, as models/policies/ for PPO
+POLICY_DIR = MODELS_DIR / "policies"  # committed trained policies, searched after <runs>/
+BASELINE_DIR = MODELS_DIR / "baselines"  # committed DQN runs, as models/policies/ for PPO
 
 
 def find_dqn(runs, init: str = "stand", dqn_dir=None) -> pathlib.Path | None:
@@ -203,21 +205,30 @@ def _run_batches(run, trials: int, batch: int, seed: int) -> dict:
     return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
 
 
-def multi_env(init: str, trials: int, n_artifacts: int = 7, **overrides):
-    """Table II's env: `mixed` tracks MULTI_TRACK_SEED + i (trial i), `n_artifacts` per track."""
+def _multi_terrain_cfg(n_artifacts: int):
     from biped_switch.config import default_terrain_config
 
     tcfg = default_terrain_config()
-    tcfg.n_artifacts = n_artifacts
-    return env_lib.make_env("mixed", init, terrain_cfg=tcfg, n_tracks=trials, seed=MULTI_TRACK_SEED,
-                            **overrides)
+    tcfg.n_artifacts = int(n_artifacts)
+    return tcfg
+
+
+def multi_env(init: str, trials: int, n_artifacts: int = 7, **overrides):
+    """Table II's env: `mixed` tracks MULTI_TRACK_SEED + i (trial i), `n_artifacts` per track."""
+    return env_lib.make_env("mixed", init, terrain_cfg=_multi_terrain_cfg(n_artifacts),
+                            n_tracks=trials, seed=MULTI_TRACK_SEED, **overrides)
+
+
+def mixed_track(seed: int, n_artifacts: int = 7):
+    """The terrain.Track of seed `seed` as multi_env lays it out (trial i: MULTI_TRACK_SEED + i)."""
+    from biped_switch import terrain
+
+    return terrain.generate_track(int(seed), "mixed", 1.0, _multi_terrain_cfg(n_artifacts))
 
 
 def trial_track(setup, trial: int):
     """The terrain.Track of a trial of `setup` (for plots)."""
-    from biped_switch import terrain
-
-    return terrain.generate_track(MULTI_TRACK_SEED + trial, "mixed", 1.0, setup.env.terrain_cfg)
+    return mixed_track(MULTI_TRACK_SEED + trial, setup.env.terrain_cfg.n_artifacts)
 
 
 def _estimators(init: str, model_dir: str):
@@ -393,15 +404,19 @@ def trial_outcome(rec: dict) -> str:
     return "fell" if rec["fell"][:n].max() > 0.5 else "time limit"
 
 
-def fig5_figure(rec: dict, track, title: str = "", threshold: float = 0.85):
+def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = None):
     """The paper's Fig. 5 (one drawing for the CLI, the demo and the notebook): estimator outputs
     while an artifact is detected (green lines: detections, red: switches), the active policy, and
     the terrain under the CoM with foot and CoM heights, the periods with the CoM over the feet
     shaded."""
+    import matplotlib.pyplot as plt
+
+    from biped_switch.config import default_switching_config
     from biped_switch.policies import POLICY_NAMES
     from biped_switch.terrain import ARTIFACT_KINDS
 
-    import matplotlib.pyplot as plt
+    if threshold is None:  # the estimator rule's E >= threshold
+        threshold = float(default_switching_config().estimator_threshold)
 
     n = trial_length(rec)
     t = np.arange(n)
@@ -465,7 +480,7 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float = 0.85):
     return fig
 
 
-def plot_trial(rec: dict, track, path: pathlib.Path, title: str = "", threshold: float = 0.85) -> None:
+def plot_trial(rec: dict, track, path: pathlib.Path, title: str = "", threshold: float | None = None) -> None:
     """Fig. 5 (`fig5_figure`) saved as a PNG, off screen."""
     import matplotlib
 
@@ -573,25 +588,47 @@ def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list
 PAPER_TABLE3_H = {"ours": 20.0, "dqn": 25.0, "end_to_end": 34.0}  # hours, CPU (Tidd et al.)
 
 
+def run_notes(run_dir) -> list[str]:
+    """Why a training run (PPO or DQN) is not a finished, real one; [] when nothing says so.
+
+    It lies in a pipeline_check folder; its latest checkpoint is short of the step goal
+    (progress.json's total_steps / total_env_steps, else config.json's); its curriculum is
+    unfinished (guide forces on or difficulty below 1: progress.json's, else the last logged in
+    metrics.csv, for folders of copied logs); a DQN selector chose among stand-in policies."""
+    d = pathlib.Path(run_dir)
+    notes = ["is a pipeline check"] if "pipeline_check" in d.resolve().parts else []
+    ck = train_lib.latest_checkpoint(d)
+    prog = json.loads((ck / "progress.json").read_text()) if ck else {}
+    cfg = json.loads((d / "config.json").read_text()) if (d / "config.json").is_file() else {}
+    total = next((v for v in (prog.get("total_steps"), prog.get("total_env_steps"),
+                              cfg.get("total_timesteps"), cfg.get("total_env_steps")) if v), None)
+    if "step" in prog and total is not None and int(prog["step"]) < int(total):
+        notes.append(f"at step {int(prog['step']):,} of {int(total):,}")
+    c = prog.get("curriculum")
+    if c is None and (d / "metrics.csv").is_file():
+        rows = list(csv.DictReader((d / "metrics.csv").open()))
+        last = {k: train_lib.curve_series(rows, k)[-1:, 1] for k in ("difficulty", "guide_scale")}
+        if all(len(v) for v in last.values()):
+            c = {"stage_name": "last logged", **{k: float(v[0]) for k, v in last.items()}}
+    if c is not None and (c["guide_scale"] > 1e-6 or c["difficulty"] < 1 - 1e-6):
+        notes.append(f"curriculum unfinished ({c['stage_name']} d={c['difficulty']:.1f} "
+                     f"guide={c['guide_scale']:.1f})")
+    stand_in = prog.get("stand_in") or any("stand-in" in str(p) for p in prog.get("policies") or ())
+    if stand_in:
+        notes.append(f"chose among stand-ins ({prog.get('stand_in') or 'see progress.json'})")
+    return notes
+
+
 def _run_record(ckpt: pathlib.Path | None) -> dict | None:
     """What a run's latest checkpoint recorded for Table III: wall time, device, step, and the
-    reasons (if any) its hours are not those of a finished, real training run."""
+    reasons (`run_notes`, prefixed with the run's name) its hours are not those of a finished,
+    real training run."""
     if ckpt is None:
         return None
     prog = json.loads((ckpt / "progress.json").read_text())
-    step, notes = int(prog.get("step", 0)), []
-    total = prog.get("total_steps", prog.get("total_env_steps"))
-    if total is not None and step < int(total):
-        notes.append(f"{ckpt.parent.parent.name} at step {step:,} of {int(total):,}")
-    c = prog.get("curriculum")
-    if c is not None and (c["guide_scale"] > 1e-6 or c["difficulty"] < 1 - 1e-6):
-        notes.append(f"{ckpt.parent.parent.name} curriculum unfinished ({c['stage_name']} "
-                     f"d={c['difficulty']:.1f} guide={c['guide_scale']:.1f})")
-    if prog.get("stand_in"):
-        notes.append(f"{ckpt.parent.parent.name} chose among stand-ins ({prog['stand_in']})")
-    if "pipeline_check" in ckpt.parts:
-        notes.append(f"{ckpt.parent.parent.name} is a pipeline check")
-    return {"wall_s": float(prog["wall_s"]), "step": step, "notes": notes,
+    run = ckpt.parent.parent
+    return {"wall_s": float(prog["wall_s"]), "step": int(prog.get("step", 0)),
+            "notes": [f"{run.name} {n}" for n in run_notes(run)],
             "device": f"{prog.get('device', '?')} x{prog.get('n_devices', 1)}"}
 
 

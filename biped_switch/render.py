@@ -64,8 +64,6 @@ def frames(qpos: np.ndarray, boxes: np.ndarray, width: int = 480, height: int = 
     from biped_switch.model import compile_mj_model
 
     m = compile_mj_model(None, track_boxes(boxes))
-    # The near clipping plane is znear x the model's extent: keep it at 5 cm whatever the extent.
-    m.vis.map.znear = 0.05 / max(m.stat.extent, 1e-6)
     d = mujoco.MjData(m)
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE

@@ -420,14 +420,12 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
             if n_s == 0 and b >= 3 and have == 0:
                 raise RuntimeError(f"no valid switch sample in {b} batches: the source policies "
                                    f"fall before the switch point (untrained policies?)")
-    finally:  # an interrupted session's time counts too
+        loop_s = time.perf_counter() - t0
+        path = merge_parts(part_dir, out_dir / init / f"{target}.npz", meta)
+    finally:  # the session's time, an interrupted one's too
+        session_s = time.perf_counter() - t_start
         if ran:
-            write_meta(wall0 + time.perf_counter() - t_start)
-    loop_s = time.perf_counter() - t0
-    path = merge_parts(part_dir, out_dir / init / f"{target}.npz", meta)
-    session_s = time.perf_counter() - t_start
-    if ran:
-        write_meta(wall0 + session_s)
+            write_meta(wall0 + session_s)
     return SweepRun(path, have - pts0, loop_s, steady_points, steady_s, session_s,
                     meta["wall_s_total"])
 

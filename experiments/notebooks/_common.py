@@ -46,8 +46,6 @@ DEFAULT_RESULTS = REPO / "experiments" / "results"
 PIPELINE_CHECK = DEFAULT_RESULTS / "pipeline_check"
 DEFAULT_RUNS = REPO / "runs"  # where train, make train-all and make reproduce write their runs
 PIPELINE_MODELS = REPO / "models" / "pipeline_check"  # the pipeline check's runs (not trained)
-POLICY_DIR = REPO / "models" / "policies"  # committed trained policies (find_policy's 2nd place)
-BASELINE_DIR = REPO / "models" / "baselines"  # committed DQN runs (find_dqn's 2nd place)
 if str(REPO) not in sys.path:  # biped_switch importable even without `pip install -e .`
     sys.path.insert(0, str(REPO))
 
@@ -61,27 +59,26 @@ METHOD_LABELS = {"random": "Random", "detection": "On detection", "lookup": "Loo
                  "end_to_end": "*End-to-end", "ours": "Ours"}
 
 
+def _repo_path(p) -> pathlib.Path:
+    """`p` with a relative path taken from the repository root."""
+    p = pathlib.Path(p).expanduser()
+    return p if p.is_absolute() else REPO / p
+
+
+def _env_path(name: str) -> pathlib.Path | None:
+    env = os.environ.get(name)
+    return _repo_path(env) if env else None
+
+
 def results_root() -> pathlib.Path:
     """$BIPED_RESULTS (relative paths taken from the repository root), else experiments/results."""
-    env = os.environ.get("BIPED_RESULTS")
-    if not env:
-        return DEFAULT_RESULTS
-    p = pathlib.Path(env).expanduser()
-    return p if p.is_absolute() else (REPO / p)
+    return _env_path("BIPED_RESULTS") or DEFAULT_RESULTS
 
 
 def is_pipeline_check(path) -> bool:
     """Whether `path` lies in a pipeline-check tree (experiments/results/pipeline_check,
     models/pipeline_check, or any other folder named pipeline_check)."""
     return "pipeline_check" in pathlib.Path(path).resolve().parts
-
-
-def _env_path(name: str) -> pathlib.Path | None:
-    env = os.environ.get(name)
-    if not env:
-        return None
-    p = pathlib.Path(env).expanduser()
-    return p if p.is_absolute() else (REPO / p)
 
 
 def runs_root(results=None) -> pathlib.Path:
@@ -468,11 +465,6 @@ def table3_rows(doc: dict, checks: dict | None = None):
     return headers, rows
 
 
-def _repo_path(p) -> pathlib.Path:
-    p = pathlib.Path(p).expanduser()
-    return p if p.is_absolute() else REPO / p
-
-
 def table3_checks(doc: dict, results, runs=None) -> tuple[pathlib.Path, dict]:
     """(the runs root, {method: notes}) of a Table III file: why each method's measured hours are
     not those of complete, real training runs ([] when they are, or when nothing was measured).
@@ -488,9 +480,11 @@ def table3_checks(doc: dict, results, runs=None) -> tuple[pathlib.Path, dict]:
         runs = _repo_path(doc["runs"])
     else:
         runs = runs_root(results) if runs is None else pathlib.Path(runs)
-    pols = [find_run(f"{k}_{init}", runs) for k in ("jumps", "gaps", "stairs")]
-    deps = {"new policy": pols, "selector": [find_dqn_run(runs, init)],
-            "policy": [find_run(f"mixed_{init}", runs)]}
+    from biped_switch.evaluate import find_dqn, find_policy
+
+    pols = [_run_dir(find_policy(k, init, runs)) for k in ("jumps", "gaps", "stairs")]
+    deps = {"new policy": pols, "selector": [find_dqn(runs, init)],
+            "policy": [_run_dir(find_policy("mixed", init, runs))]}
     lookup = results / "lookup" / f"lookup_{init}.json"
     try:
         sweeps = (json.loads(lookup.read_text()).get("meta") or {}).get("sweeps") or {}
@@ -799,15 +793,11 @@ def load_trial(path) -> dict:
 
 
 def trial_track(track_seed: int, n_artifacts: int | None = None):
-    """The `mixed` track of a Table II trial (evaluate.trial_track): `n_artifacts` per track as
+    """The `mixed` track of a Table II trial (evaluate.mixed_track): `n_artifacts` per track as
     recorded in the run's settings (None: the default 7)."""
-    from biped_switch import terrain
-    from biped_switch.config import default_terrain_config
+    from biped_switch.evaluate import mixed_track
 
-    cfg = default_terrain_config()
-    if n_artifacts is not None:
-        cfg.n_artifacts = int(n_artifacts)
-    return terrain.generate_track(int(track_seed), "mixed", 1.0, cfg)
+    return mixed_track(track_seed, 7 if n_artifacts is None else n_artifacts)
 
 
 def trial_length(rec: dict) -> int:
@@ -844,7 +834,7 @@ def trial_outcome(rec: dict) -> str:
     return f(rec)
 
 
-def plot_fig5(rec: dict, track, title: str = "", threshold: float = 0.85):
+def plot_fig5(rec: dict, track, title: str = "", threshold: float | None = None):
     """The paper's Fig. 5 (`biped_switch.evaluate.fig5_figure`, which the CLI and demo save)."""
     _plt()
     from biped_switch.evaluate import fig5_figure
@@ -880,29 +870,6 @@ def find_training_runs(results: pathlib.Path, roots: Sequence | None = None,
     return sorted({d.resolve(): d for d in found}.values())
 
 
-def latest_checkpoint(run_dir) -> pathlib.Path | None:
-    """train.latest_checkpoint: the run's last checkpoints/<12 digits>/ with a progress.json."""
-    ckpts = sorted(p for p in (pathlib.Path(run_dir) / "checkpoints").glob("[0-9]" * 12)
-                   if (p / "progress.json").is_file())
-    return ckpts[-1] if ckpts else None
-
-
-def find_run(name: str, runs) -> pathlib.Path | None:
-    """evaluate.find_policy's search, as a run folder: <runs>/<name>, then models/policies/<name>."""
-    for base in (_repo_path(runs), POLICY_DIR):
-        if latest_checkpoint(base / name) is not None:
-            return base / name
-    return None
-
-
-def find_dqn_run(runs, init: str = "stand") -> pathlib.Path | None:
-    """evaluate.find_dqn's search: <runs>/dqn_<init>, then models/baselines/dqn_<init>."""
-    for d in (_repo_path(runs) / f"dqn_{init}", BASELINE_DIR / f"dqn_{init}"):
-        if latest_checkpoint(d) is not None:
-            return d
-    return None
-
-
 def _read_json(path) -> dict:
     try:
         return json.loads(pathlib.Path(path).read_text())
@@ -911,33 +878,14 @@ def _read_json(path) -> dict:
 
 
 def run_notes(run_dir) -> list[str]:
-    """Why a run is not a finished, real training run ([] if nothing says so): it lies in a
-    pipeline_check folder; its latest checkpoint is short of the step goal (progress.json's
-    total_steps / total_env_steps, else config.json's); its curriculum is unfinished (guide forces
-    on or difficulty below 1; from progress.json, else the last values in metrics.csv); a DQN
-    selector chose among stand-in policies."""
-    d = pathlib.Path(run_dir)
-    notes = ["a pipeline check"] if is_pipeline_check(d) else []
-    ck = latest_checkpoint(d)
-    prog = _read_json(ck / "progress.json") if ck else {}
-    cfg = _read_json(d / "config.json")
-    step = prog.get("step")
-    total = next((v for v in (prog.get("total_steps"), prog.get("total_env_steps"),
-                              cfg.get("total_timesteps"), cfg.get("total_env_steps")) if v), None)
-    if step is not None and total is not None and int(step) < int(total):
-        notes.append(f"at step {int(step):,} of {int(total):,}")
-    c = prog.get("curriculum")
-    if c is None and (d / "metrics.csv").is_file():
-        m = read_csv(d / "metrics.csv")
-        c = {k: float(series(m, k)[1][-1]) for k in ("difficulty", "guide_scale")
-             if len(series(m, k)[1])}
-    g, dif = (c or {}).get("guide_scale"), (c or {}).get("difficulty")
-    if (g is not None and g > 1e-6) or (dif is not None and dif < 1 - 1e-6):
-        notes.append(f"curriculum unfinished ({c.get('stage_name', 'last logged')} d={_fmt(dif)}, "
-                     f"guide_scale {_fmt(g)})")
-    if prog.get("stand_in") or stand_ins(prog.get("policies") or ()):
-        notes.append(f"chose among stand-in policies ({prog.get('stand_in') or 'see progress.json'})")
-    return notes
+    """evaluate.run_notes: why a run is not a finished, real training run ([] if nothing says so)."""
+    from biped_switch.evaluate import run_notes as f
+
+    return f(run_dir)
+
+
+def _run_dir(ckpt) -> pathlib.Path | None:
+    return None if ckpt is None else pathlib.Path(ckpt).parent.parent
 
 
 def training_checks(runs: Sequence[pathlib.Path]) -> list[str]:
