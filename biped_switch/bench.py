@@ -8,6 +8,14 @@ compile_s, control_steps_per_s, physics_steps_per_s, heightmap_share (the height
 a fraction of a control step's) and n_boxes (the compiled box slots every step pays for), with the
 device and the versions.
 
+    python -m biped_switch.bench --train --backend mujoco --json
+
+Times PPO training (ppo.py) with collection and updates together, at the CPU preset (256 envs x 32
+steps per iteration, 4 epochs of 4 minibatches): compile_s once, then env_steps_per_s over
+`--iterations` timed iterations, with the time split into collection and update phases.
+`--encoding mlp` measures the paper-sized heightmap encoder (2,400 -> 128 -> 64) against the lean
+default (`pool`: 150 pooled values); `--backend mjx` the same trainer on MJX.
+
     python -m biped_switch.bench --estimator --points 100000 --epochs 3 --json
 
 Times switch-estimator training (issue 4: the paper spent about an hour per estimator) on random
@@ -45,11 +53,11 @@ def _time(fn, *args, reps: int) -> float:
 
 
 def run(batch: int = 256, kind: str = "mixed", steps: int = 20, seed: int = 0,
-        n_artifacts: int | None = None, n_tracks: int = 32) -> dict:
+        n_artifacts: int | None = None, n_tracks: int = 32, backend: str = "auto") -> dict:
     tcfg = default_terrain_config()
     if n_artifacts is not None:
         tcfg.n_artifacts = n_artifacts
-    env = env_lib.make_env(kind, terrain_cfg=tcfg, n_tracks=n_tracks, seed=seed)
+    env = env_lib.make_env(kind, terrain_cfg=tcfg, n_tracks=n_tracks, seed=seed, backend=backend)
     cfg = env.cfg
     keys = jax.random.split(jax.random.PRNGKey(seed), batch)
 
@@ -92,11 +100,49 @@ def run(batch: int = 256, kind: str = "mixed", steps: int = 20, seed: int = 0,
         "heightmap_ms": round(hm_s * 1e3, 3),
         "heightmap_share": round(hm_s / step_s, 4),
         "controller": "scripted standing (PD hold at every substep)",
+        "backend": env.backend,
         "device": f"{dev.platform}:{getattr(dev, 'device_kind', '')}",
         "n_devices": jax.device_count(),
         "host": platform.node(),
         "cpu_count": __import__("os").cpu_count(),
         "jax": jax.__version__,
+    }
+
+
+def run_train(backend: str = "auto", kind: str = "walk", iterations: int = 5, preset: str = "cpu",
+              encoding: str = "pool", seed: int = 0) -> dict:
+    """PPO env steps/s (collection + updates) on `backend`, after one compile."""
+    from biped_switch import ppo
+    from biped_switch import train as train_lib
+
+    cfg = train_lib.default_train_config(preset)
+    cfg.policy, cfg.env.backend, cfg.network.encoding = kind, backend, encoding
+    env = train_lib.make_env(cfg)
+    trainer = ppo.make_train(cfg, env)
+    curr = jnp.asarray([1.0, 1.0, 0.0], jnp.float32)  # difficulty 1, guides on, no pushes
+    ts = trainer.init(jax.random.PRNGKey(seed))
+    envs = trainer.reset_envs(jax.random.PRNGKey(seed + 1), curr)
+    t0 = time.perf_counter()
+    ts, envs, m = jax.block_until_ready(trainer.iteration(ts, envs, jax.random.PRNGKey(seed + 2), curr))
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for i in range(iterations):
+        ts, envs, m = trainer.iteration(ts, envs, jax.random.PRNGKey(seed + 3 + i), curr)
+    jax.block_until_ready(m)
+    it_s = (time.perf_counter() - t0) / iterations
+    p = cfg.ppo
+    dev = jax.devices()[0]
+    return {
+        "what": "ppo_train", "backend": env.backend, "kind": kind, "preset": preset,
+        "encoding": encoding, "num_envs": p.num_envs, "unroll_length": p.unroll_length,
+        "epochs": p.num_updates_per_batch, "minibatches": p.num_minibatches,
+        "policy_hidden": list(cfg.network.policy_hidden), "action": cfg.env.action,
+        "compile_s": round(compile_s, 2), "iteration_s": round(it_s, 3),
+        "iterations_timed": iterations,
+        "env_steps_per_s": round(trainer.steps_per_iteration / it_s, 1),
+        "device": f"{dev.platform}:{getattr(dev, 'device_kind', '')}", "n_devices": 1,
+        "cpu_count": __import__("os").cpu_count(), "jax": jax.__version__,
+        "python": platform.python_version(),
     }
 
 
@@ -126,12 +172,19 @@ def run_estimator(points: int, epochs: int, seed: int = 0) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.bench", description=__doc__.split("\n")[0])
     p.add_argument("--batch", type=int, default=256)
-    p.add_argument("--kind", default="mixed", choices=terrain.KINDS)
+    p.add_argument("--kind", default=None, choices=terrain.KINDS,
+                   help="track kind (default: mixed; --train: walk)")
     p.add_argument("--steps", type=int, default=20, help="timed control steps")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--n-artifacts", type=int, default=None, help="artifacts per track (paper: 7)")
     p.add_argument("--json", action="store_true", help="print only the JSON object")
     p.add_argument("--estimator", action="store_true", help="time switch-estimator training instead")
+    p.add_argument("--train", action="store_true", help="time PPO training (collection + updates)")
+    p.add_argument("--backend", default="auto", choices=("auto",) + env_lib.BACKENDS)
+    p.add_argument("--encoding", default="pool", choices=("pool", "mlp"),
+                   help="--train: the policy's heightmap input (pool: 150 values; mlp: 2,400)")
+    p.add_argument("--iterations", type=int, default=5, help="--train: timed PPO iterations")
+    p.add_argument("--preset", default="cpu", choices=("cpu", "gpu"), help="--train: batch sizes")
     p.add_argument("--points", type=int, default=100_000, help="--estimator: data points")
     p.add_argument("--epochs", type=int, default=3, help="--estimator: epochs (the first compiles)")
     a = p.parse_args(argv)
@@ -141,12 +194,19 @@ def main(argv=None) -> int:
         res = run_estimator(a.points, a.epochs, a.seed)
         print(json.dumps(res) if a.json else json.dumps(res, indent=2))
         return 0
+    if a.train:
+        if a.iterations < 1:
+            p.error(f"--iterations must be >= 1 (got {a.iterations})")
+        res = run_train(a.backend, a.kind or "walk", a.iterations, a.preset, a.encoding, a.seed)
+        print(json.dumps(res) if a.json else json.dumps(res, indent=2))
+        return 0
     if a.batch < 1 or a.steps < 1:
         p.error(f"--batch and --steps must be >= 1 (got {a.batch}, {a.steps})")
+    a.kind = a.kind or "mixed"
     if not a.json:
         print(f"benchmarking batch {a.batch} on {a.kind} tracks on {jax.devices()[0]} ...",
               file=sys.stderr)
-    res = run(a.batch, a.kind, a.steps, a.seed, a.n_artifacts)
+    res = run(a.batch, a.kind, a.steps, a.seed, a.n_artifacts, backend=a.backend)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0
 

@@ -47,6 +47,19 @@ def default_model_config() -> config_dict.ConfigDict:
 def default_env_config() -> config_dict.ConfigDict:
     return config_dict.create(
         kind="walk",  # terrain kind of the track bank
+        backend="auto",  # physics: "mujoco" (C engine, native.py), "mjx", or "auto": mujoco on a
+        # CPU, mjx on an accelerator
+        action="pd",  # "torque": joint torques as fractions of the motor limits (the paper);
+        # "pd": joint targets (pd_offset) + action * action_scale_rad, tracked by a PD law at every
+        # physics substep, torques clipped to the motor limits
+        pd_offset="gait",  # "pd": targets are offsets from the scripted gait's joint angles
+        # ("gait", the standing pose during the pause) or from the standing pose ("stand")
+        action_scale_rad=0.5,  # "pd": target offset [rad] at action 1
+        pd_kp_per_gear=2.0,  # "pd": stiffness [Nm/rad] per Nm of motor limit (knee: 500 Nm/rad)
+        pd_kd_ratio=0.025,  # "pd": damping [Nm s/rad] = pd_kd_ratio * stiffness. Explicit damping
+        # is stable while c dt / I < 2: with the full joint guide on top (c = 0.1 gear) this keeps
+        # the 60 Nm joints (I ~ 0.02 kg m^2 with armature) at the standing hold's 0.15 gear
+        phase_obs=True,  # append the scripted gait's phase clock (sin, cos of 2 pi t / period)
         n_tracks=256,  # tracks in the bank; reset picks one at random
         seed=0,  # seed of the bank's first track (track i has seed + i)
         difficulty=1.0,  # traced: the curriculum changes it without recompiling

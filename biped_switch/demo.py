@@ -52,6 +52,8 @@ def main(argv=None) -> int:
                    help="policy used for any that is not trained (flagged in the output)")
     p.add_argument("--guide-scale", type=float, default=None,
                    help="scripted guide forces (default: on only when a policy is a stand-in)")
+    p.add_argument("--backend", default="auto", choices=evaluate.BACKEND_CHOICES,
+                   help=evaluate.BACKEND_HELP)
     p.add_argument("--no-video", action="store_true")
     p.add_argument("--out", default="experiments/results/demo")
     a = p.parse_args(argv)
@@ -79,7 +81,7 @@ def main(argv=None) -> int:
     guide = a.guide_scale if a.guide_scale is not None else (1.0 if stand_ins else 0.0)
     print(f"demo: {len(methods)} methods x {a.trials} mixed {a.n_artifacts}-artifact tracks "
           f"({a.horizon_s:.0f} s limit), then Fig. 5 and a GIF of one trial. Finishes in under 10 "
-          f"minutes on 2 CPU cores (about 40% of it compiling the MJX rollouts), about a minute on a GPU.",
+          f"minutes on 2 CPU cores (about 40% of it compiling the rollouts), about a minute on a GPU.",
           flush=True)
     for s in skipped:
         print(f"  skipped {s}")
@@ -90,7 +92,7 @@ def main(argv=None) -> int:
     rows, setups = evaluate.evaluate_multi(
         methods, a.trials, a.trials, a.horizon_s, a.seed, a.runs, a.stand_in, a.estimators,
         a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=guide, dqn_dir=a.dqn,
-        n_artifacts=a.n_artifacts)
+        n_artifacts=a.n_artifacts, backend=a.backend)
     md = evaluate.table2_markdown(rows)
     if stand_ins or guide > 0:
         md = (f"PIPELINE CHECK, NOT A RESULT: stand-ins for {', '.join(stand_ins) or 'none'} "
@@ -102,7 +104,8 @@ def main(argv=None) -> int:
                "n_artifacts": a.n_artifacts,
                "guide_scale": guide, "stand_ins": stand_ins,
                "policies": list(setups["stand"].suite.sources) if "stand" in setups else None,
-               "rows": rows, "device": str(jax.devices()[0])}
+               "rows": rows, "device": str(jax.devices()[0]),
+               "backend": sorted({r["backend"] for r in rows})}
     setup = setups.get("stand")
     if setup is not None and setup.est_apply is not None:
         rec = evaluate.trace_trial(setup, "estimator", 0, a.seed)
@@ -117,7 +120,7 @@ def main(argv=None) -> int:
     summary["wall_s"] = round(time.perf_counter() - t0, 1)
     (out / "demo_summary.json").write_text(json.dumps(summary, indent=2, default=str))
     print(json.dumps({"demo_wall_s": summary["wall_s"], "device": summary["device"],
-                      "video": summary.get("video")}))
+                      "backend": summary["backend"], "video": summary.get("video")}))
     return 0
 
 

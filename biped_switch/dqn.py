@@ -7,12 +7,14 @@ that picks, at every control step, which pre-trained policy of the suite acts.
 Unlike the switch estimators, the DQN is trained on the test domain: `mixed` tracks (7 artifacts of
 every kind; training tracks have seeds `seed .. seed + n_tracks - 1`, evaluation tracks 30,000..).
 
-Input: the Q-network sees the robot state (51), the heightmap (2400) and the oracle detector's
-artifact kind as a one-hot (3) -- `q_input(obs, detected_kind)`. The one-hot is rebuilt from
+Input: the Q-network sees what the behaviour policies see -- the robot state (51), the heightmap
+(2400) and, when the suite was trained with it, the gait phase clock (2): the first
+`env.policy_observation_size` columns -- and the oracle detector's artifact kind as a one-hot (3):
+`q_input(obs, detected_kind, n_policy_obs)`. The one-hot is rebuilt from
 `state.metrics["detected_kind"]` (the very value the env's `detector_one_hot` appends), so the
-DQN runs on an env made with or without `detector_one_hot`; `make_env("mixed", "stand",
-detector_one_hot=True, ...)` is what the CLI uses. The behaviour policies always get the first
-2451 columns (they were trained without the one-hot).
+DQN runs on an env made with or without `detector_one_hot`; `make_dqn_env` (the suite's env
+overrides, `detector_one_hot=True`) is what the CLI uses. The behaviour policies always get the
+first `env.policy_observation_size` columns (they were trained without the one-hot).
 Output: Q-values of the 4 policies (index = policies.POLICY_INDEX: walk, jumps, gaps, stairs).
 
 Reward per step: the env's reward (the one each policy was trained on) plus an oracle bonus
@@ -25,34 +27,35 @@ Learning: Double DQN (van Hasselt et al.): target r + gamma (1 - done) Q_target(
 Q_online(s', a)), Huber loss on the chosen action, Adam (Optax) with gradient clipping, a target
 network synced every `target_update_period` updates (tau = 1: hard copy; tau < 1: Polyak step),
 epsilon-greedy exploration with epsilon linear in env steps from `epsilon.start` to `epsilon.end`
-over `epsilon.decay_steps`. Collection is vectorised over `num_envs` MJX envs: per iteration each
-env takes one step (Q picks a policy, the suite gives the torques), the `num_envs` transitions go
-into the replay buffer, then `updates_per_collect` gradient updates on uniform samples of
-`batch_size`. Episodes end on a fall or the finish (done = 1: no bootstrap) or after
-`max_episode_s` (a time-out: bootstrapped); an ended env starts its next episode, at the start of
-the next iteration, from a random state of a pool of reset states (`reset_pool`: one per bank
-track, so a random track; with the `stand` init a reset depends on the track alone, so this is
-exactly a fresh reset, for the price of a gather instead of an `mjx.forward` of every env whenever
-any env ends). `log_every` iterations run as one jitted `lax.scan` (one progress line). Training
-runs on one device (the first); `dqn_rollout` can be split over devices with
-`rollout.over_devices` as `evaluate multi` does.
+over `epsilon.decay_steps`. Collection is vectorised over `num_envs` envs (either physics
+backend, `--backend`): per iteration each env takes one step (Q picks a policy, the suite gives
+the actions), the `num_envs` transitions go into the replay buffer, then `updates_per_collect`
+gradient updates on uniform samples of `batch_size`. Episodes end on a fall or the finish
+(done = 1: no bootstrap) or after `max_episode_s` (a time-out: bootstrapped); an ended env starts
+its next episode, at the start of the next iteration, from a random state of a pool of reset
+states (`reset_pool`: one per bank track, so a random track; with the `stand` init a reset
+depends on the track alone, so this is exactly a fresh reset, for the price of a gather instead
+of a forward pass of every env whenever any env ends). `log_every` iterations run as one jitted
+`lax.scan` (one progress line). Training runs on one device (the first); `dqn_rollout` can be
+split over devices with `rollout.over_devices` as `evaluate multi` does.
 
 Input scaling: the Q-network normalises its input with statistics frozen when the buffer first
 holds `learning_starts` transitions (the state per column, the heightmap with one shared mean and
-std, the one-hot untouched; std floored at `norm_std_floor`; the normalised input clipped to
-+-10). They are part of the params (`params["norm"]`), so a checkpoint (with the run's `config.json`
-for the layer sizes) is enough to run the network.
+std, the phase clock and the one-hot untouched; std floored at `norm_std_floor`; the normalised
+input clipped to +-10). They are part of the params (`params["norm"]`), so a checkpoint (with the
+run's `config.json` for the layer sizes) is enough to run the network.
 
 Replay buffer: a pytree of fixed-size arrays (a ring). Observations are stored split: the 51 state
-columns as float32, the heightmap and one-hot as float16 (heightmap values lie in [0, 1]; float16
-keeps them to 5e-4), about 5 kB per observation and 10 kB per transition (obs and next obs): the
-GPU preset's 500,000 transitions take about 5 GB.
+columns as float32, the heightmap, phase clock and one-hot as float16 (heightmap values lie in
+[0, 1], the clock's in [-1, 1]; float16 keeps them to 5e-4), about 5 kB per observation and
+10 kB per transition (obs and next obs): the GPU preset's 500,000 transitions take about 5 GB.
 
 Checkpoints: every `chunk_env_steps` env steps, an Orbax checkpoint `checkpoints/<step>/` of the
 online and target params and the optimiser state, with `progress.json` (step, `total_env_steps`:
 the target this session was asked to reach, so step < total_env_steps marks an unfinished run;
 epsilon: the schedule's value at `step`, the one the next iteration acts with; n_updates, wall_s,
-env steps/s, the policies used incl. any stand-in); a rerun resumes from the latest one.
+env steps/s, the policies used incl. any stand-in, their env overrides and the physics
+backend); a rerun resumes from the latest one.
 NOT saved: the replay buffer and the envs' states. After a resume the envs start new episodes and
 the buffer refills: no gradient update happens until it again holds `learning_starts` transitions
 (those env steps count towards the total). Step counts are rounded up to whole jitted calls
@@ -139,12 +142,24 @@ def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
 
 # ----------------------------------------------------------------------- pure pieces
 def policy_obs_size(env) -> int:
-    """Observation columns the behaviour policies read: robot state + heightmap (2451)."""
-    return STATE_SIZE + env.cfg.shape.grid_forward * env.cfg.shape.grid_lateral
+    """Observation columns the behaviour policies read: robot state + heightmap (2451), + the
+    phase clock (2) when the env has one (`env.policy_observation_size`)."""
+    return env.policy_observation_size
+
+
+def hm_size(env) -> int:
+    """The heightmap's columns (2400), right after the robot state."""
+    return env.cfg.shape.grid_forward * env.cfg.shape.grid_lateral
+
+
+def q_input_size(env) -> int:
+    """Q-network input columns: the policies' observation and the detector one-hot."""
+    return policy_obs_size(env) + N_KINDS
 
 
 def q_input(obs: jax.Array, detected_kind: jax.Array, n_policy_obs: int) -> jax.Array:
-    """(..., n_policy_obs + 3): state + heightmap, and the one-hot of the detected kind (-1: none)."""
+    """(..., n_policy_obs + 3): the policies' observation (state, heightmap, phase clock if any),
+    and the one-hot of the detected kind (-1: none)."""
     one_hot = jax.nn.one_hot(jnp.asarray(detected_kind).astype(jnp.int32), N_KINDS, dtype=obs.dtype)
     return jnp.concatenate([obs[..., :n_policy_obs], one_hot], axis=-1)
 
@@ -257,12 +272,14 @@ def make_q(net_cfg, hm_size: int, n_actions: int = N_ACTIONS):
     return init, apply
 
 
-def input_norm(x: jax.Array, n_policy_obs: int, std_floor: float) -> dict:
-    """Normaliser of Q inputs `x` (N, in_size): state columns each their own mean/std, heightmap
-    columns one shared mean/std, the one-hot columns mean 0, std 1."""
+def input_norm(x: jax.Array, n_policy_obs: int, std_floor: float, n_hm: int | None = None) -> dict:
+    """Normaliser of Q inputs `x` (N, in_size): state columns each their own mean/std, the `n_hm`
+    heightmap columns after them (default: all up to `n_policy_obs`) one shared mean/std, the
+    rest (phase clock, one-hot; already in [-1, 1]) mean 0, std 1."""
     x = x.astype(jnp.float32)
-    s, h = x[:, :STATE_SIZE], x[:, STATE_SIZE:n_policy_obs]
-    n_extra = x.shape[1] - n_policy_obs
+    n_hm = n_policy_obs - STATE_SIZE if n_hm is None else n_hm
+    s, h = x[:, :STATE_SIZE], x[:, STATE_SIZE:STATE_SIZE + n_hm]
+    n_extra = x.shape[1] - STATE_SIZE - n_hm
     hm_mean, hm_std = jnp.mean(h), jnp.std(h)
     mean = jnp.concatenate([jnp.mean(s, 0), jnp.full(h.shape[1], hm_mean), jnp.zeros(n_extra)])
     std = jnp.concatenate([jnp.std(s, 0), jnp.full(h.shape[1], hm_std), jnp.ones(n_extra)])
@@ -442,9 +459,9 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
     if cfg.num_envs > cfg.replay_capacity:
         raise ValueError("num_envs must not exceed replay_capacity")
     p = policy_obs_size(env)
-    in_size = p + N_KINDS
-    hm_size = p - STATE_SIZE
-    q_init, q_apply = make_q(cfg.network, hm_size)
+    in_size = q_input_size(env)
+    n_hm = hm_size(env)
+    q_init, q_apply = make_q(cfg.network, n_hm)
     optimizer = make_optimizer(cfg)
     update = make_update(q_apply, optimizer, cfg.gamma, cfg.huber_delta)
     max_steps = int(round(cfg.max_episode_s / env.dt))
@@ -466,7 +483,8 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
         return TrainState(collector_init(pool, n_envs), *init_learner(key))
 
     def set_norm(params, target, buf):
-        norm = input_norm(buffer_rows(buf, jnp.asarray(norm_idx))["obs"], p, cfg.norm_std_floor)
+        norm = input_norm(buffer_rows(buf, jnp.asarray(norm_idx))["obs"], p, cfg.norm_std_floor,
+                          n_hm)
         return {**params, "norm": norm}, {**target, "norm": norm}
 
     def iteration(ts: TrainState, suite_params, pool):
@@ -515,7 +533,7 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
                                 reset_pool=jax.jit(lambda key: reset_pool(env, key, pool_size)),
                                 q_apply=q_apply,
                                 q_init=q_init, optimizer=optimizer, max_steps=max_steps,
-                                in_size=in_size, hm_size=hm_size)
+                                in_size=in_size, hm_size=n_hm)
     _FNS_CACHE[cache_key] = (env, suite_apply, fns)  # keep both alive: their ids stay unique
     return fns
 
@@ -555,14 +573,27 @@ def _as_template(tree, template):
                         template)
 
 
+def _save(run_dir: pathlib.Path, step: int, tree: dict, progress: dict) -> pathlib.Path:
+    """Orbax checkpoint <run>/checkpoints/<step>/ of `tree` with progress.json beside it, the
+    layout `train.latest_checkpoint` finds (train._save now takes a PPO TrainState only)."""
+    import orbax.checkpoint as ocp
+
+    path = pathlib.Path(run_dir) / "checkpoints" / f"{step:012d}"
+    ocp.PyTreeCheckpointer().save(path.resolve(), tree, force=True)
+    (path / "progress.json").write_text(json.dumps(progress, indent=2))
+    return path
+
+
 def _restore(path: pathlib.Path) -> dict:
     import orbax.checkpoint as ocp
 
     return ocp.PyTreeCheckpointer().restore(pathlib.Path(path).resolve())
 
 
-def load_dqn(run_dir):
-    """(q_apply, q_params) of the latest checkpoint of a DQN run (online net, with its normaliser)."""
+def load_dqn(run_dir, in_size: int | None = None):
+    """(q_apply, q_params) of the latest checkpoint of a DQN run (online net, with its normaliser).
+    `in_size`: the Q-input size of the env it will run on (`q_input_size(env)`), checked against
+    the checkpoint's (a selector trained without the phase clock cannot read one with it)."""
     from biped_switch import train as train_lib
 
     run_dir = pathlib.Path(run_dir)
@@ -572,6 +603,11 @@ def load_dqn(run_dir):
                                 f"(train with `python -m biped_switch.dqn`)")
     cfg = config_dict.ConfigDict(json.loads((run_dir / "config.json").read_text()))
     prog = json.loads((ckpt / "progress.json").read_text())
+    saved_in = prog.get("q_input_size")
+    if in_size is not None and saved_in is not None and int(saved_in) != int(in_size):
+        raise ValueError(f"{ckpt}: the DQN selector reads {saved_in} input columns, the env gives "
+                         f"{in_size} (policy observation + one-hot); retrain it for this policy "
+                         f"suite (make train-dqn)")
     net_cfg = config_dict.create(hidden=tuple(cfg.network.hidden), hm_hidden=tuple(cfg.network.hm_hidden))
     _, q_apply = make_q(net_cfg, prog["hm_size"])
     params = jax.tree.map(jnp.asarray, _restore(ckpt)["online"])
@@ -622,37 +658,36 @@ def dqn_rollout(env, suite_apply, suite_params, q_apply, q_params, rng: jax.Arra
 
 
 # ----------------------------------------------------------------------- training driver
-def _suite_env(env):
-    """What `policies.load_suite` reads of an env (grid sizes, observation and action sizes), with
-    the observation size of the policies (no one-hot), whatever the DQN's env appends."""
-    return types.SimpleNamespace(cfg=env.cfg, observation_size=policy_obs_size(env),
-                                 action_size=env.action_size)
-
-
-def make_dqn_env(cfg):
+def make_dqn_env(cfg, backend: str = "auto", **overrides):
+    """The DQN's training env: `mixed` tracks with the detector one-hot, on the physics `backend`;
+    `overrides` are the policy suite's env overrides (`policies.suite_env_overrides`)."""
     from biped_switch import env as env_lib
 
     return env_lib.make_env("mixed", cfg.init, detector_one_hot=True, n_tracks=cfg.n_tracks,
-                            seed=cfg.seed, difficulty=cfg.difficulty)
+                            seed=cfg.seed, difficulty=cfg.difficulty, backend=backend, **overrides)
 
 
 def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks: int | None = None,
-              print_fn=print, env=None, suite: pol.PolicySuite | None = None, pool=None) -> dict:
+              print_fn=print, env=None, suite: pol.PolicySuite | None = None, pool=None,
+              backend: str = "auto") -> dict:
     """Trains (or resumes) until `total_env_steps` (or `max_chunks` chunks); returns the last
     progress record of this session, {} when it saved none (the run had already reached the total).
 
-    `env` (default: mixed tracks with the one-hot), `suite` (default: the `cfg.init` policies
-    under `runs`, missing ones replaced by `stand_in`) and `pool` (the episode starts; default:
-    `reset_pool` of one state per bank track) may be passed in (tests)."""
+    `env` (default: `make_dqn_env` on `backend` with the suite's env overrides), `suite` (default:
+    the `cfg.init` policies under `runs`, missing ones replaced by `stand_in`) and `pool` (the
+    episode starts; default: `reset_pool` of one state per bank track) may be passed in (tests)."""
     from biped_switch import train as train_lib
 
     t_session = time.perf_counter()
     run_dir = pathlib.Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
-    env = env if env is not None else make_dqn_env(cfg)
+    if env is None:
+        overrides = (suite.env_overrides if suite is not None
+                     else pol.suite_env_overrides(cfg.init, runs, stand_in=stand_in))
+        env = make_dqn_env(cfg, backend, **overrides)
     if suite is None:
-        suite = pol.load_suite(cfg.init, _suite_env(env), runs, stand_in=stand_in)
+        suite = pol.load_suite(cfg.init, env, runs, stand_in=stand_in)
     fns = make_train_fns(cfg, env, suite.apply)
     logger = train_lib.Logger(run_dir)
     ckpt = train_lib.latest_checkpoint(run_dir)
@@ -717,12 +752,13 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
                     "env_steps_per_s": (step - step0) / chunk_s, "last": last,
                     "hm_size": fns.hm_size, "q_input_size": fns.in_size, "init": cfg.init,
                     "stand_in": stand_in, "policies": list(suite.sources),
+                    "env_overrides": dict(suite.env_overrides), "backend": env.backend,
                     "oracle_bonus": cfg.oracle_bonus, "device": str(jax.devices()[0]),
                     "buffer_saved": False}
         tree = {"online": jax.tree.map(np.asarray, jax.device_get(ts.params)),
                 "target": jax.tree.map(np.asarray, jax.device_get(ts.target)),
                 "opt": _opt_to_dict(jax.device_get(ts.opt_state))}
-        path = train_lib._save(run_dir, step, tree, progress)
+        path = _save(run_dir, step, tree, progress)
         logger.log(step, {"wall_s": wall_s, "chunk_env_steps_per_s": progress["env_steps_per_s"]})
         print_fn(f"[dqn/{cfg.init}] chunk done at step {step:,} ({n_updates:,} updates, "
                  f"{chunk_s:.0f} s); saved {path}")
@@ -746,6 +782,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="run directory (default RUNS/dqn_<init>)")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
+    p.add_argument("--backend", default="auto", choices=("auto",) + env_lib.BACKENDS,
+                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     a = p.parse_args(argv)
     cfg = default_dqn_config(a.preset)
     cfg.init, cfg.seed = a.init, a.seed
@@ -758,7 +796,7 @@ def main(argv=None) -> int:
           f"{cfg.total_env_steps:,} env steps, {cfg.num_envs} envs, checkpoints every "
           f"{cfg.chunk_env_steps:,} -> {run_dir}", flush=True)
     train_dqn(cfg, run_dir, a.runs, a.stand_in, a.max_chunks,
-              print_fn=functools.partial(print, flush=True))
+              print_fn=functools.partial(print, flush=True), backend=a.backend)
     return 0
 
 

@@ -3,10 +3,19 @@
 `reset(rng)` picks a track from a bank of seeded tracks and lays its boxes out at the (traced)
 difficulty; the boxes live in the state's info, and `step` writes them into the model's terrain
 slots (`model.with_boxes`), so every env of a batch has its own track and nothing recompiles.
-Actions are joint torques as fractions of each motor's limit, in [-1, 1].
+Actions, in [-1, 1] (config `action`): "torque", joint torques as fractions of each motor's limit
+(the paper); or "pd", joint targets `base + action * action_scale_rad` tracked by a PD law at
+every physics substep, its torques clipped to the motor limits, where the base is the scripted
+gait's joint angles (`pd_offset="gait"`, a residual on the gait) or the standing pose ("stand").
+
+Physics backends (config `backend`): "mjx" steps MJX inside the jitted step; "mujoco" steps MuJoCo's
+C engine through one pure callback per control step for the whole batch (native.py), about 9x
+faster on a CPU. Everything else (observation, reward, termination, guides, pushes, the control
+laws) is the same code on both; "auto" picks mujoco on a CPU and mjx on an accelerator.
 
 Observation = robot state (51) + heightmap (60 x 40, flattened row-major, rows run forward)
-[+ detected artifact one-hot (3) when `detector_one_hot`]. Robot state layout (STATE_SLICES):
+[+ gait phase clock (sin, cos of 2 pi t / gait period, t from the end of the pause) when
+`phase_obs`] [+ detected artifact one-hot (3) when `detector_one_hot`]. Robot state layout (STATE_SLICES):
   0:12   joint positions [rad], order model.JOINT_NAMES (left then right: hip yaw, roll, pitch,
          knee, ankle pitch, roll)
   12:24  joint velocities [rad/s]
@@ -48,6 +57,7 @@ from mujoco import mjx
 
 from biped_switch import gait
 from biped_switch import model as model_lib
+from biped_switch import native
 from biped_switch import terrain
 from biped_switch.config import (default_curriculum_config, default_env_config, default_gait_config,
                                  default_model_config, default_terrain_config)
@@ -66,6 +76,8 @@ STATE_SLICES = {
     "com_height": slice(50, 51),
 }
 INITS = ("stand", "random")
+BACKENDS = ("mujoco", "mjx")
+ACTIONS = ("torque", "pd")
 HOLD_KP_PER_GEAR, HOLD_KD_RATIO = 3.0, 0.05  # standing PD hold: e.g. knee 750 Nm/rad, 37.5 Nm s/rad
 # info keys that Brax's training wrappers (EpisodeWrapper, AutoResetWrapper) own: the env must not
 # write them (an env counter named "steps" doubled Brax's and halved every training episode).
@@ -94,6 +106,15 @@ def _euler(xmat):
     return yaw, pitch, roll
 
 
+def resolve_backend(name: str) -> str:
+    """"auto" -> "mujoco" on a CPU (the C engine is ~9x faster there), "mjx" on an accelerator."""
+    if name == "auto":
+        return "mujoco" if jax.default_backend() == "cpu" else "mjx"
+    if name not in BACKENDS:
+        raise ValueError(f"unknown physics backend {name!r}; expected 'auto' or one of {BACKENDS}")
+    return name
+
+
 def sole_contacts(data: mjx.Data, sole_geoms: np.ndarray) -> jnp.ndarray:
     """(8,) 1.0 where a sole sphere touches (penetrates) the terrain, from the culled contacts."""
     c = data._impl.contact
@@ -115,6 +136,11 @@ class BipedEnv(Env):
         self.model_cfg = model_cfg or default_model_config()
         if self.cfg.init not in INITS:
             raise ValueError(f"unknown init mode {self.cfg.init!r}; expected one of {INITS}")
+        if self.cfg.action not in ACTIONS:
+            raise ValueError(f"unknown action mode {self.cfg.action!r}; expected one of {ACTIONS}")
+        if self.cfg.pd_offset not in ("gait", "stand"):
+            raise ValueError(f"unknown pd_offset {self.cfg.pd_offset!r}; expected 'gait' or 'stand'")
+        self._backend = resolve_backend(self.cfg.backend)
         terrain.check_difficulty(self.cfg.difficulty)
         self.biped = biped or model_lib.build_model(self.model_cfg)
         if tracks is None:
@@ -130,9 +156,16 @@ class BipedEnv(Env):
             "spans": bank.artifact_segments, "after": bank.finish_after_m.astype(np.float32)})
         self._offsets = jnp.asarray(cell_offsets(self.cfg.heightmap, self.cfg.shape), jnp.float32)
         b = self.biped
-        self._data0 = mjx.make_data(b.mj_model, impl="jax")
+        if self._backend == "mjx":
+            self._data0 = mjx.make_data(b.mj_model, impl="jax")
+        else:
+            self._native = native.CPhysics(b, native.ModelBank(self.model_cfg, bank),
+                                           lambda q, qd, inputs: self._control(q, qd, inputs, np))
+        self._sole_radius_m = float(b.mj_model.geom_size[b.sole_geoms[0, 0], 0])
         self._stand_q = jnp.asarray(b.stand_qpos[b.qpos_adr], jnp.float32)
         self._gear = jnp.asarray(b.gear, jnp.float32)
+        self._np = {"stand_q": b.stand_qpos[b.qpos_adr].astype(np.float64),
+                    "gear": b.gear.astype(np.float64)}
         self._lo = jnp.asarray(b.joint_range[:, 0], jnp.float32)
         self._hi = jnp.asarray(b.joint_range[:, 1], jnp.float32)
         self._h_stand = self._stand_height()
@@ -152,9 +185,15 @@ class BipedEnv(Env):
         return float(d.xipos[self.biped.pelvis_body, 2])
 
     @property
-    def observation_size(self) -> int:
+    def policy_observation_size(self) -> int:
+        """The leading part of the observation that behaviour policies read: state, heightmap and
+        the phase clock (the detector one-hot, last, is the DQN selector's)."""
         sh = self.cfg.shape
-        return STATE_SIZE + sh.grid_forward * sh.grid_lateral + (3 if self.cfg.detector_one_hot else 0)
+        return STATE_SIZE + sh.grid_forward * sh.grid_lateral + (2 if self.cfg.phase_obs else 0)
+
+    @property
+    def observation_size(self) -> int:
+        return self.policy_observation_size + (3 if self.cfg.detector_one_hot else 0)
 
     @property
     def action_size(self) -> int:
@@ -162,7 +201,8 @@ class BipedEnv(Env):
 
     @property
     def backend(self) -> str:
-        return "mjx"
+        """The physics backend in use: "mujoco" or "mjx"."""
+        return self._backend
 
     @property
     def dt(self) -> float:
@@ -180,12 +220,37 @@ class BipedEnv(Env):
             bk["after"][track_id], xp=jnp)
         return boxes, a0, a1, bk["codes"][track_id], finish
 
-    def pd_ctrl(self, data: mjx.Data) -> jnp.ndarray:
-        """Actions of a PD controller holding the standing keyframe (scripted standing)."""
-        q = data.qpos[self.biped.qpos_adr]
-        qd = data.qvel[self.biped.dof_adr]
-        tau = gait.pd_torque(q, qd, self._stand_q, HOLD_KP_PER_GEAR, HOLD_KD_RATIO, self._gear)
-        return tau / self._gear
+    def _control(self, q, qd, inputs: dict, xp=jnp):
+        """The control laws of one physics substep, for either backend (`xp`: jnp or numpy):
+        actuator controls [fraction of the motor limit] and the joint guide torques [Nm].
+
+        q, qd (..., 12) joint positions [rad] and velocities [rad/s]; inputs: "action" (..., 12),
+        "paused" (...) 1 while the standing PD hold acts, "guide" (...) guide scale (0 while
+        paused), "q_ref" (..., 12) the scripted gait's joint targets [rad]."""
+        c = self._np if xp is np else {"stand_q": self._stand_q, "gear": self._gear}
+        gear, stand_q = c["gear"], c["stand_q"]
+        hold = gait.pd_torque(q, qd, stand_q, HOLD_KP_PER_GEAR, HOLD_KD_RATIO, gear, xp) / gear
+        if self.cfg.action == "pd":
+            base = inputs["q_ref"] if self.cfg.pd_offset == "gait" else stand_q
+            target = base + inputs["action"] * self.cfg.action_scale_rad
+            act = gait.pd_torque(q, qd, target, self.cfg.pd_kp_per_gear, self.cfg.pd_kd_ratio,
+                                 gear, xp) / gear
+        else:
+            act = inputs["action"]
+        ctrl = xp.where(inputs["paused"][..., None] > 0.5, hold, act)
+        tau = inputs["guide"][..., None] * gait.joint_guide(q, qd, inputs["q_ref"], gear,
+                                                            self.gait_cfg, xp)
+        return ctrl, tau
+
+    def _forward(self, track_id, difficulty, boxes, qpos):
+        """Physics state at rest at `qpos`, with positions and contacts computed."""
+        if self._backend == "mujoco":
+            return native.forward(self._native, track_id, difficulty, qpos,
+                                  jnp.zeros(self.biped.mj_model.nv, qpos.dtype))
+        m = model_lib.with_boxes(self.biped.mjx_model, self.biped.box_start, boxes)
+        data = self._data0.replace(qpos=qpos, qvel=jnp.zeros_like(self._data0.qvel),
+                                   ctrl=jnp.zeros_like(self._data0.ctrl))
+        return mjx.forward(m, data)
 
     def reset(self, rng: jax.Array, difficulty=None, track_id=None, guide_scale=None,
               push_scale=None) -> State:
@@ -200,23 +265,19 @@ class BipedEnv(Env):
         if track_id is None:
             track_id = jax.random.randint(k_track, (), 0, self.bank.size)
         boxes, a0, a1, codes, finish = self.track_arrays(track_id, difficulty)
-        m = model_lib.with_boxes(self.biped.mjx_model, self.biped.box_start, boxes)
         b = self.biped
         qpos = jnp.asarray(b.stand_qpos, jnp.float32)
         if self.cfg.init == "random":
             half = 0.5 * (self._hi - self._lo) * self.cfg.random_joint_scale
             q = self._stand_q + jax.random.uniform(k_q, (12,), minval=-1.0, maxval=1.0) * half
             qpos = qpos.at[b.qpos_adr].set(jnp.clip(q, self._lo, self._hi))
-        data = self._data0.replace(qpos=qpos, qvel=jnp.zeros_like(self._data0.qvel),
-                                   ctrl=jnp.zeros_like(self._data0.ctrl))
-        data = mjx.kinematics(m, data)
+        data = self._forward(track_id, difficulty, boxes, qpos)
         # Lift or lower the robot so its lowest sole sits 1 mm above the ground beneath it.
         soles = data.geom_xpos[b.sole_geoms.reshape(-1)]
         ground = terrain_height(boxes, soles[:, :2])
-        clearance = jnp.min(soles[:, 2] - 0.02 - ground)
-        data = data.replace(qpos=data.qpos.at[2].add(1e-3 - clearance))
-        data = mjx.forward(m, data)
-        contact = self._contacts9(data)
+        clearance = jnp.min(soles[:, 2] - self._sole_radius_m - ground)
+        data = self._forward(track_id, difficulty, boxes, qpos.at[2].add(1e-3 - clearance))
+        contact = self._contacts9(data, boxes)
         info = {
             "rng": rng,
             "boxes": boxes,
@@ -247,7 +308,6 @@ class BipedEnv(Env):
     def _step(self, state: State, action: jax.Array, hold) -> State:
         info = dict(state.info)
         b = self.biped
-        m = model_lib.with_boxes(b.mjx_model, b.box_start, info["boxes"])
         action = jnp.clip(action, -1.0, 1.0)
         paused = (info["time_s"] < self._pause_s) | hold
         walk_t = info["time_s"] - self._pause_s
@@ -264,19 +324,11 @@ class BipedEnv(Env):
         wrench = guide * gait.com_guide(f["com"], f["lin_vel"], f["ang_vel"], f["yaw"], f["pitch"],
                                         f["roll"], f["com_height"], target, self._h_stand,
                                         self.gait_cfg)
-        xfrc = jnp.zeros_like(state.pipeline_state.xfrc_applied).at[b.pelvis_body].set(
-            wrench.at[:3].add(push_force))
-
-        def substep(d, _):
-            ctrl = jnp.where(paused, self.pd_ctrl(d), action)
-            q, qd = d.qpos[b.qpos_adr], d.qvel[b.dof_adr]
-            tau = guide * gait.joint_guide(q, qd, q_ref, self._gear, self.gait_cfg)
-            d = d.replace(ctrl=ctrl, xfrc_applied=xfrc,
-                          qfrc_applied=jnp.zeros_like(d.qfrc_applied).at[b.dof_adr].set(tau))
-            return mjx.step(m, d), None
-
-        data, _ = jax.lax.scan(substep, state.pipeline_state, None, length=b.n_substeps)
-        contact = self._contacts9(data)
+        pelvis_wrench = wrench.at[:3].add(push_force)
+        inputs = {"action": action, "paused": paused.astype(jnp.float32), "guide": guide,
+                  "q_ref": q_ref}
+        data = self._physics_step(state.pipeline_state, info, pelvis_wrench, inputs)
+        contact = self._contacts9(data, info["boxes"])
         info["time_s"] = info["time_s"] + self.dt
         obs, feat = self._observe(data, info, contact, prev=info["contact_prev"])
         info["contact_prev"] = contact
@@ -285,12 +337,30 @@ class BipedEnv(Env):
                 | (jnp.abs(feat["roll"]) > cfg.fall_tilt_rad) | (feat["com"][2] < FALL_Z_M)
                 | ~jnp.all(jnp.isfinite(data.qpos)))
         success = (feat["com"][0] >= info["finish_x"]) & ~fell
-        reward = self._reward(feat, action, fell, paused)
+        reward = self._reward(feat, data.ctrl, fell, paused)
         done = (fell | success).astype(jnp.float32)
         metrics = self._metrics(feat, info, fell=fell.astype(jnp.float32),
                                 success=success.astype(jnp.float32))
         return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done,
                              metrics=metrics, info=info)
+
+    def _physics_step(self, data, info, pelvis_wrench, inputs):
+        """One control step of physics: `n_substeps` steps, the control laws at each one."""
+        if self._backend == "mujoco":
+            return native.step(self._native, info["track_id"], info["difficulty"], data,
+                               pelvis_wrench, inputs)
+        b = self.biped
+        m = model_lib.with_boxes(b.mjx_model, b.box_start, info["boxes"])
+        xfrc = jnp.zeros_like(data.xfrc_applied).at[b.pelvis_body].set(pelvis_wrench)
+
+        def substep(d, _):
+            ctrl, tau = self._control(d.qpos[b.qpos_adr], d.qvel[b.dof_adr], inputs)
+            d = d.replace(ctrl=ctrl, xfrc_applied=xfrc,
+                          qfrc_applied=jnp.zeros_like(d.qfrc_applied).at[b.dof_adr].set(tau))
+            return mjx.step(m, d), None
+
+        data, _ = jax.lax.scan(substep, data, None, length=b.n_substeps)
+        return data
 
     def _push(self, info):
         """Random pushes: start one with probability dt / interval when none is running."""
@@ -306,8 +376,12 @@ class BipedEnv(Env):
         return rng, force.astype(jnp.float32), left.astype(jnp.float32)
 
     # ----------------------------------------------------------------- features
-    def _contacts9(self, data) -> jnp.ndarray:
-        c8 = sole_contacts(data, self.biped.sole_geoms)
+    def _contacts9(self, data, boxes) -> jnp.ndarray:
+        if self._backend == "mujoco":
+            c8 = native.sole_contacts_geometric(data.geom_xpos[self.biped.sole_geoms.reshape(-1)],
+                                                self._sole_radius_m, boxes)
+        else:
+            c8 = sole_contacts(data, self.biped.sole_geoms)
         return jnp.concatenate([c8, (jnp.sum(c8) == 0).astype(jnp.float32)[None]])
 
     def _pose(self, qpos):
@@ -341,6 +415,10 @@ class BipedEnv(Env):
             feat["com_height"][None]]).astype(jnp.float32)
         feat["detect"] = self.detect(info, feat["com"][0])
         parts = [state, hmap.reshape(-1).astype(jnp.float32)]
+        if self.cfg.phase_obs:
+            walk_t = jnp.maximum(info["time_s"] - self._pause_s, 0.0)
+            angle = 2 * jnp.pi * walk_t / self.gait_cfg.period_s
+            parts.append(jnp.stack([jnp.sin(angle), jnp.cos(angle)]).astype(jnp.float32))
         if self.cfg.detector_one_hot:
             parts.append(jax.nn.one_hot(feat["detect"]["kind"], len(terrain.ARTIFACT_KINDS)))
         return jnp.concatenate(parts), feat
@@ -368,7 +446,7 @@ class BipedEnv(Env):
         return {"index": jnp.where(valid, nxt, -1), "kind": jnp.where(seen, info["art_kind"][nxt], -1),
                 "dist_m": jnp.where(valid, dist, jnp.inf)}
 
-    def _reward(self, feat, action, fell, paused):
+    def _reward(self, feat, ctrl, fell, paused):
         w = self.cfg.reward
         target = jnp.where(paused, 0.0, self.cfg.target_speed_mps)
         vx = feat["lin_vel"][0]
@@ -378,7 +456,7 @@ class BipedEnv(Env):
              + w.upright * jnp.cos(feat["pitch"]) * jnp.cos(feat["roll"])
              + w.height * jnp.exp(-((feat["com_height"] - self._h_stand) ** 2) / 0.01)
              - w.lateral * (jnp.abs(feat["com"][1]) + jnp.abs(feat["yaw"]))
-             - w.torque * jnp.mean(jnp.where(paused, 0.0, action) ** 2)  # only applied actions
+             - w.torque * jnp.mean(jnp.where(paused, 0.0, ctrl) ** 2)  # policy's torques only
              - w.fall * fell)
         return r.astype(jnp.float32)
 

@@ -1,13 +1,19 @@
 """Evaluations and the paper's tables.
 
     python -m biped_switch.evaluate single [--trials 500] [--runs runs] [--policies walk jumps ...]
+                                           [--track-seed 10000] [--backend auto] [--horizon-s S]
 
 `single` (Table I): each policy on tracks of its own terrain kind (7 artifacts, 500 trials by
-default), for both init modes, without switching. Reports % of the total track distance covered
-(distance along x from the start to the finish line, capped at 100%) and % success (reached the
-finish line without falling), each with a 95% confidence interval (normal interval of the mean for
-distance, Wilson score interval for success), prints a Markdown table and saves it with a CSV and a
-JSON of the settings under experiments/results/table1/.
+default; trial i on the track of seed `--track-seed` + i, by default tracks training never saw),
+for both init modes, without switching, in an env made with the env overrides (action mode, phase
+clock) the policy was trained with. Reports % of the total track distance covered (distance along
+x from the start to the finish line, capped at 100%) and % success (reached the finish line
+without falling), each with a 95% confidence interval (normal interval of the mean for distance,
+Wilson score interval for success), and the mean forward speed (distance / time alive after the
+standing pause); prints a Markdown table and saves it with a CSV and a JSON of the settings
+(backend, track seed, horizon) under experiments/results/table1/. The time limit, unless
+`--horizon-s` is given, lets a walker at 0.6 m/s reach the farthest finish line of the tracks
+evaluated, with a 20% margin (`single_horizon_s`); each row says which limit it ran with.
 Policies load from `<runs>/<policy>_<init>/checkpoints/<latest>` (or models/policies/).
 
     python -m biped_switch.evaluate multi [--trials 2500] [--methods random detection ...]
@@ -17,6 +23,7 @@ row, >= 0.9 m of flat before each; trial i uses track i and rng seed + batch sta
 starting with the walk policy; the methods differ only in when they switch (switching.py). The
 stand-init suite is used for every method but `estimator_no_overlap`, which uses the random-init
 policies and their estimators and starts from random joints with no pause, as they were trained.
+Every env runs on the physics `--backend`, with the env overrides its policy suite was trained with.
 Reports % distance, % success and % of trials failing on gaps / jumps / stairs, with 95% CIs;
 saves Markdown, CSV and JSON under experiments/results/table2/, plus the paper's Fig. 5 (one
 trial of the estimator method over time) as fig5_trial<i>.png.
@@ -47,6 +54,9 @@ PAPER_TABLE1 = {  # % total distance, % success: stand init / random init (Tidd 
     "gaps": (76.0, 56.3, 87.4, 75.5),
     "stairs": (71.4, 52.1, 78.7, 59.0),
 }
+
+BACKEND_CHOICES = ("auto",) + env_lib.BACKENDS
+BACKEND_HELP = "physics backend (auto: mujoco on a CPU, mjx on an accelerator)"
 
 
 def wilson_ci(successes: float, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -93,12 +103,54 @@ def find_policy(policy: str, init: str, runs: pathlib.Path) -> pathlib.Path | No
     return None
 
 
+HORIZON_SPEED_MPS = 0.6  # Table I's acceptance speed: the derived horizon lets a walker this
+HORIZON_MARGIN = 1.2  # fast finish the longest track with this margin on the walking time
+
+
+def single_horizon_s(finish_m: float, pause_s: float, speed_mps: float = HORIZON_SPEED_MPS,
+                     margin: float = HORIZON_MARGIN) -> float:
+    """Episode time limit [s] of Table I: the standing pause, then `margin` times the time to walk
+    to the farthest finish line `finish_m` [m] (the episode starts near x = 0) at `speed_mps`."""
+    return float(np.ceil(pause_s + margin * finish_m / speed_mps))
+
+
+def speed_table(result: dict, dt_s: float, pause_s: float) -> dict:
+    """Mean forward speed [m/s] over episodes (with its 95% CI): distance / time alive after the
+    standing pause (`speed_mps`, the policy's own speed), also over successful episodes only, and
+    distance / time alive with the pause (`speed_alive_mps`)."""
+    dist = np.asarray(result["distance_m"], float)
+    alive_s = np.asarray(result["length"], float) * dt_s
+    walking = np.maximum(alive_s - pause_s, dt_s)
+    speed = dist / walking
+    succ = np.asarray(result["success"]) > 0.5
+    m, lo, hi = mean_ci(speed)
+    return {"speed_mps": m, "speed_ci": [lo, hi],
+            "speed_success_mps": float(speed[succ].mean()) if succ.any() else math.nan,
+            "speed_alive_mps": float(np.mean(dist / np.maximum(alive_s, dt_s)))}
+
+
 def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, seed: int,
-                    horizon_s: float, batch: int) -> dict:
-    """Table I row: `trials` episodes of `policy` on its own terrain kind, track i for trial i."""
+                    horizon_s: float | None, batch: int, backend: str = "auto",
+                    track_seed: int | None = None) -> dict:
+    """Table I row: `trials` episodes of `policy` on its own terrain kind, trial i on track
+    `track_seed + i` (default EVAL_TRACK_SEED: tracks training never saw), in an env made with
+    the env overrides the policy was trained with. `horizon_s` None: `single_horizon_s` of the
+    farthest finish line of these tracks."""
+    track_seed = EVAL_TRACK_SEED if track_seed is None else int(track_seed)
     # difficulty 1, no guides, no pushes (the config's defaults)
-    env = env_lib.make_env(policy, init, n_tracks=trials, seed=EVAL_TRACK_SEED)
+    env = env_lib.make_env(policy, init, n_tracks=trials, seed=track_seed, backend=backend,
+                           **train_lib.policy_env_overrides(ckpt))
     act, progress = train_lib.load_policy(ckpt, env)
+    finish = jax.vmap(lambda i: env.track_arrays(i, env.cfg.difficulty)[4])(
+        jax.numpy.arange(env.bank.size))
+    finish_m = float(jax.numpy.max(finish))
+    pause_s = float(env.cfg.pause_s) if init == "stand" else 0.0
+    if horizon_s is None:
+        horizon_s = single_horizon_s(finish_m, pause_s)
+        horizon_from = (f"derived: {pause_s:g} s pause + {HORIZON_MARGIN:g} x farthest finish "
+                        f"{finish_m:.1f} m / {HORIZON_SPEED_MPS:g} m/s")
+    else:
+        horizon_from = "--horizon-s"
     run = jax.jit(functools.partial(rollout, env, act, n_envs=batch,
                                     horizon=int(round(horizon_s / env.dt))))
     results = []
@@ -107,8 +159,12 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
         results.append(jax.device_get(run(jax.random.PRNGKey(seed + start), track_ids=ids)))
     merged = {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
     out = episode_table(merged)
+    out.update(speed_table(merged, env.dt, pause_s))
     out.update(policy=policy, init=init, checkpoint=str(ckpt), train_step=progress["step"],
-               curriculum=progress["curriculum"])
+               curriculum=progress["curriculum"], backend=env.backend, track_seed=track_seed,
+               env_overrides=train_lib.policy_env_overrides(ckpt), horizon_s=horizon_s,
+               horizon_from=horizon_from, finish_m_max=finish_m,
+               timed_out_pct=100.0 * float((np.asarray(merged["done"]) < 0.5).mean()))
     return out
 
 
@@ -123,16 +179,21 @@ def _pct_ci(v: float, ci) -> str:
 
 def table1_markdown(rows: list[dict]) -> str:
     lines = ["| policy | init | trials | % total dist. (95% CI) | % success (95% CI) | paper dist. | "
-             "paper success | trained steps | curriculum |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "paper success | trained steps | curriculum | speed m/s (95% CI) | horizon s | "
+             "track seed | backend |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         paper = PAPER_TABLE1.get(r["policy"])
         pd, ps = ((paper[0], paper[1]) if r["init"] == "stand" else (paper[2], paper[3])) if paper \
             else ("-", "-")
         c = r["curriculum"]
+        speed = (f"{r['speed_mps']:.2f} ({r['speed_ci'][0]:.2f}-{r['speed_ci'][1]:.2f})"
+                 if "speed_mps" in r else "-")
+        horizon = f"{r['horizon_s']:g}" if r.get("horizon_s") is not None else "-"
         lines.append(
             f"| {r['policy']} | {r['init']} | {r['n']} | {_dist_success_cells(r)} | {pd} | {ps} | "
-            f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} g={c['guide_scale']:.1f} |")
+            f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} g={c['guide_scale']:.1f} | "
+            f"{speed} | {horizon} | {r.get('track_seed', '-')} | {r.get('backend', '-')} |")
     return "\n".join(lines)
 
 
@@ -214,7 +275,9 @@ def _multi_terrain_cfg(n_artifacts: int):
 
 
 def multi_env(init: str, trials: int, n_artifacts: int = 7, **overrides):
-    """Table II's env: `mixed` tracks MULTI_TRACK_SEED + i (trial i), `n_artifacts` per track."""
+    """Table II's env: `mixed` tracks MULTI_TRACK_SEED + i (trial i), `n_artifacts` per track;
+    `overrides` (env config: the physics `backend`, the suite's action mode and phase clock, ...)
+    go to `env.make_env`."""
     return env_lib.make_env("mixed", init, terrain_cfg=_multi_terrain_cfg(n_artifacts),
                             n_tracks=trials, seed=MULTI_TRACK_SEED, **overrides)
 
@@ -243,13 +306,14 @@ class MultiSetup:
 
     def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
                  est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
-                 guide_scale: float = 0.0, n_artifacts: int = 7):
+                 guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto"):
         from biped_switch import policies as pol
         from biped_switch import sweep
         from biped_switch import switching as sw
 
         self.init = init
-        self.env = multi_env(init, trials, n_artifacts)
+        self.env = multi_env(init, trials, n_artifacts, backend=backend,
+                             **pol.suite_env_overrides(init, runs, stand_in=stand_in))
         self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in)
         self.est_apply, self.est_params, self.est_meta = None, None, None
         if need_estimators:
@@ -284,7 +348,8 @@ class BaselineSetup:
     always picks it."""
 
     def __init__(self, method: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
-                 dqn_dir=None, guide_scale: float = 0.0, n_artifacts: int = 7):
+                 dqn_dir=None, guide_scale: float = 0.0, n_artifacts: int = 7,
+                 backend: str = "auto"):
         from biped_switch import dqn as dqn_lib
         from biped_switch import policies as pol
         from biped_switch.rollout import over_devices
@@ -296,9 +361,11 @@ class BaselineSetup:
             if run_dir is None:
                 raise FileNotFoundError(f"no stand-init DQN checkpoint under {dqn_dir or runs}/ or "
                                         f"{BASELINE_DIR}/ (make train-dqn)")
-            self.env = multi_env("stand", trials, n_artifacts, detector_one_hot=True)
-            self.suite = pol.load_suite("stand", dqn_lib._suite_env(self.env), runs, stand_in=stand_in)
-            q_apply, self.q_params = dqn_lib.load_dqn(run_dir)
+            self.env = multi_env("stand", trials, n_artifacts, detector_one_hot=True,
+                                 backend=backend,
+                                 **pol.suite_env_overrides("stand", runs, stand_in=stand_in))
+            self.suite = pol.load_suite("stand", self.env, runs, stand_in=stand_in)
+            q_apply, self.q_params = dqn_lib.load_dqn(run_dir, dqn_lib.q_input_size(self.env))
             ckpt = train_lib.latest_checkpoint(run_dir)
             self.sources = self.suite.sources + (f"selector: {ckpt}",)
             trained_with = json.loads((ckpt / "progress.json").read_text()).get("policies")
@@ -309,7 +376,8 @@ class BaselineSetup:
                               f"(make train-dqn) for a Table II row", stacklevel=2)
                 self.sources += (f"MISMATCH: selector trained with {trained_with}",)
         else:
-            self.env = multi_env("stand", trials, n_artifacts)
+            self.env = multi_env("stand", trials, n_artifacts, backend=backend,
+                                 **pol.suite_env_overrides("stand", runs, names=("mixed",)))
             self.suite = pol.load_suite("stand", self.env, runs, names=("mixed",))
             self.q_params = jax.numpy.zeros(())
 
@@ -333,16 +401,17 @@ class BaselineSetup:
 def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
                    stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
                    print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
-                   n_artifacts: int = 7) -> tuple[list, dict]:
+                   n_artifacts: int = 7, backend: str = "auto") -> tuple[list, dict]:
     """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
-    and per baseline ("dqn", "end_to_end"). `wall_s` of a row includes its setup and compiles."""
+    and per baseline ("dqn", "end_to_end"), every env on the physics `backend` with its policies'
+    env overrides. `wall_s` of a row includes its setup and compiles."""
     setups, rows = {}, []
     for method in methods:
         t0 = time.perf_counter()
         init = "random" if method == "estimator_no_overlap" else "stand"
         if method in BASELINES:
             setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
-                                           guide_scale, n_artifacts)
+                                           guide_scale, n_artifacts, backend)
             merged, sources = setups[method].evaluate(trials, seed), setups[method].sources
         else:
             if init not in setups:
@@ -350,13 +419,14 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                 setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
                                           lookup_dir, need_est,
                                           "lookup" in methods and init == "stand", guide_scale,
-                                          n_artifacts)
+                                          n_artifacts, backend)
             rule = "estimator" if method == "estimator_no_overlap" else method
             merged, sources = setups[init].evaluate(rule, trials, seed), setups[init].suite.sources
         row = episode_table(merged)
+        env = setups[method if method in BASELINES else init].env
         row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
                    switches_per_trial=float(np.mean(merged["n_switches"])),
-                   policies=list(sources))
+                   policies=list(sources), backend=env.backend)
         rows.append(row)
         print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
                  f"  ({row['wall_s']:.0f} s)")
@@ -501,8 +571,15 @@ def main(argv=None) -> int:
     s.add_argument("--inits", nargs="+", default=list(env_lib.INITS), choices=env_lib.INITS)
     s.add_argument("--trials", type=int, default=500)
     s.add_argument("--batch", type=int, default=100, help="episodes per jitted rollout")
-    s.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
+    s.add_argument("--horizon-s", type=float, default=None,
+                   help=f"episode time limit [s] (default: per policy, the standing pause plus "
+                        f"{HORIZON_MARGIN:g} x the time to its farthest finish line at "
+                        f"{HORIZON_SPEED_MPS:g} m/s)")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--track-seed", type=int, default=EVAL_TRACK_SEED,
+                   help=f"trial i runs on the track of seed TRACK_SEED + i (default "
+                        f"{EVAL_TRACK_SEED:,}: tracks training never saw)")
+    s.add_argument("--backend", default="auto", choices=BACKEND_CHOICES, help=BACKEND_HELP)
     s.add_argument("--runs", default="runs")
     s.add_argument("--out", default="experiments/results/table1")
     m = sub.add_parser("multi", help="Table II: switching methods on multi-artifact tracks")
@@ -522,6 +599,7 @@ def main(argv=None) -> int:
     m.add_argument("--guide-scale", type=float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
     m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 (-1: none)")
+    m.add_argument("--backend", default="auto", choices=BACKEND_CHOICES, help=BACKEND_HELP)
     m.add_argument("--out", default="experiments/results/table2")
     r = sub.add_parser("retrain-cost", help="Table III: hours to add a new terrain, from logs")
     r.add_argument("--runs", default="runs")
@@ -542,6 +620,8 @@ def main(argv=None) -> int:
         return 0
     if a.trials < 1 or a.batch < 1:
         p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
+    if a.horizon_s is not None and a.horizon_s <= 0:
+        p.error(f"--horizon-s must be > 0 (got {a.horizon_s})")
     rows, missing = [], []
     for init in a.inits:
         for policy in a.policies:
@@ -550,10 +630,16 @@ def main(argv=None) -> int:
                 missing.append(f"{policy}_{init}")
                 continue
             t0 = time.perf_counter()
-            print(f"evaluating {policy}/{init} ({ckpt}) on {a.trials} {policy} tracks ...", flush=True)
+            print(f"evaluating {policy}/{init} ({ckpt}) on {a.trials} {policy} tracks of seeds "
+                  f"{a.track_seed:,}.. ({a.backend} backend) ...", flush=True)
             row = evaluate_single(policy, init, ckpt, a.trials, a.seed, a.horizon_s,
-                                  min(a.batch, a.trials))
+                                  min(a.batch, a.trials), a.backend, a.track_seed)
             row["wall_s"] = time.perf_counter() - t0
+            print(f"  {policy}/{init}: success {row['success_pct']:.1f}%, distance "
+                  f"{row['distance_pct']:.1f}%, mean speed {row['speed_mps']:.2f} m/s, timed out "
+                  f"{row['timed_out_pct']:.1f}%; horizon {row['horizon_s']:g} s "
+                  f"({row['horizon_from']}), {row['backend']} backend ({row['wall_s']:.0f} s)",
+                  flush=True)
             rows.append(row)
     if missing:
         print(f"no trained policy found for: {', '.join(missing)} (looked in {a.runs}/ and "
@@ -561,11 +647,19 @@ def main(argv=None) -> int:
     if not rows:
         return 1
     out = _write_table(a.out, "table1", table1_markdown(rows),
-                       ["policy", "init", "trials", "checkpoint", "train_step"],
-                       [[r["policy"], r["init"], r["n"], r["checkpoint"], r["train_step"]] for r in rows],
+                       ["policy", "init", "trials", "checkpoint", "train_step", "speed_mps",
+                        "speed_lo", "speed_hi", "horizon_s", "track_seed", "backend"],
+                       [[r["policy"], r["init"], r["n"], r["checkpoint"], r["train_step"],
+                         r["speed_mps"], *r["speed_ci"], r["horizon_s"], r["track_seed"],
+                         r["backend"]] for r in rows],
                        rows)
-    (out / "table1.json").write_text(json.dumps({"settings": vars(a), "rows": rows}, indent=2,
-                                                default=str))
+    (out / "table1.json").write_text(json.dumps(
+        {"settings": vars(a), "rows": rows, "track_seed": a.track_seed,
+         "backend": sorted({r["backend"] for r in rows}),
+         "horizon_s": {f"{r['policy']}_{r['init']}": r["horizon_s"] for r in rows},
+         "speed_note": "speed_mps: distance / time alive after the standing pause, mean over "
+                       "episodes; speed_alive_mps: the same with the pause"},
+        indent=2, default=str))
     return 0
 
 
@@ -734,7 +828,7 @@ def _main_multi(a, p) -> int:
     rows, setups = evaluate_multi(a.methods, a.trials, batch, a.horizon_s, a.seed, a.runs,
                                   a.stand_in, a.estimators, a.lookup,
                                   print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale,
-                                  dqn_dir=a.dqn, n_artifacts=a.n_artifacts)
+                                  dqn_dir=a.dqn, n_artifacts=a.n_artifacts, backend=a.backend)
     out = _write_table(a.out, "table2", table2_markdown(rows),
                        ["method", "init", "trials"]
                        + [f"{k}_fail_{c}" for k in ("gap", "jump", "stair") for c in ("pct", "lo", "hi")]
@@ -746,7 +840,7 @@ def _main_multi(a, p) -> int:
     wall = time.perf_counter() - t0
     (out / "table2.json").write_text(json.dumps(
         {"settings": vars(a), "rows": rows, "skipped": skipped, "wall_s": wall,
-         "device": str(jax.devices()[0]),
+         "device": str(jax.devices()[0]), "backend": sorted({r["backend"] for r in rows}),
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
     if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
         s = setups["stand"]

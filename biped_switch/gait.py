@@ -40,17 +40,18 @@ def reference(t_s, stand_q, cfg=None):
     return q.reshape(12)
 
 
-def pd_torque(q, qd, q_ref, kp_per_gear, kd_ratio, gear):
+def pd_torque(q, qd, q_ref, kp_per_gear, kd_ratio, gear, xp=jnp):
     """PD torques [Nm] towards `q_ref`: stiffness kp_per_gear * gear [Nm/rad], damping kd_ratio *
-    stiffness [Nm s/rad], bounded by each motor's limit `gear` [Nm]."""
+    stiffness [Nm s/rad], bounded by each motor's limit `gear` [Nm]. `xp`: jax.numpy or numpy
+    (the `mujoco` backend evaluates the same law on the host between physics substeps)."""
     kp = kp_per_gear * gear
-    return jnp.clip(kp * (q_ref - q) - kd_ratio * kp * qd, -gear, gear)
+    return xp.clip(kp * (q_ref - q) - kd_ratio * kp * qd, -gear, gear)
 
 
-def joint_guide(q, qd, q_ref, gear, cfg=None):
+def joint_guide(q, qd, q_ref, gear, cfg=None, xp=jnp):
     """(12,) guide torques [Nm] towards the gait's `q_ref`."""
     cfg = cfg or default_gait_config()
-    return pd_torque(q, qd, q_ref, cfg.kp_per_gear, cfg.kd_ratio, gear)
+    return pd_torque(q, qd, q_ref, cfg.kp_per_gear, cfg.kd_ratio, gear, xp)
 
 
 def com_guide(com, lin_vel, ang_vel, yaw, pitch, roll, height_m, target_speed_mps, stand_height_m,

@@ -1,11 +1,12 @@
 """The behaviour-policy suite as one stacked pytree, so a switching controller is one jitted function.
 
-Every policy of a suite has the same network sizes, so their parameters stack along a leading axis
-(index = POLICY_INDEX: walk 0, jumps 1, gaps 2, stairs 3, i.e. artifact code + 1) and
-`all_actions(apply, params, obs)` evaluates all of them on a batch with one vmap. A switching
-controller then picks each env's action by its active index. Evaluating four small MLPs per step
-costs little next to the physics, and it keeps policies and switching rules traced arrays: the
-stand-init and random-init suites share one compiled rollout.
+Every policy of a suite has the same network config and the same env overrides (action mode,
+phase clock: `suite_env_overrides`, to build the suite's env with), so one env serves them all
+and their parameters stack along a leading axis (index = POLICY_INDEX: walk 0, jumps 1, gaps 2,
+stairs 3, i.e. artifact code + 1) and `all_actions(apply, params, obs)` evaluates all of them on a
+batch with one vmap. A switching controller then picks each env's action by its active index.
+Evaluating four small MLPs per step costs little next to the physics, and it keeps policies and
+switching rules traced arrays: the stand-init and random-init suites share one compiled rollout.
 """
 
 from __future__ import annotations
@@ -27,9 +28,10 @@ ApplyFn = Callable[[object, jax.Array], jax.Array]  # (one policy's params, obs 
 
 
 class PolicySuite(NamedTuple):
-    apply: ApplyFn  # deterministic action of one policy
+    apply: ApplyFn  # deterministic action of one policy, on any obs with the policy columns first
     params: object  # pytree, leading axis = len(POLICY_NAMES)
     sources: tuple  # per policy: the checkpoint it came from (or "stand-in for X: ...")
+    env_overrides: dict = {}  # env-config overrides the policies were trained with (read only)
 
 
 def all_actions(apply: ApplyFn, params, obs: jax.Array) -> jax.Array:
@@ -46,24 +48,75 @@ def stack(params_list: list) -> object:
     return jax.tree.map(lambda *xs: jnp.stack(xs), *params_list)
 
 
-def brax_apply(train_cfg, env) -> ApplyFn:
-    """The deterministic action of a Brax PPO policy (tanh of the Gaussian's mean) as a pure
-    function of its (normalizer, policy) parameters, for the network sizes of `train_cfg`."""
-    from brax.training.acme import running_statistics
+def find_suite(init: str, runs: str | pathlib.Path = "runs", stand_in: str | None = None,
+               names: tuple = POLICY_NAMES) -> dict:
+    """{name: checkpoint} of a suite, each name's latest checkpoint under runs/ or
+    models/policies/, or the stand-in's where it has none (see `load_suite`)."""
+    from biped_switch import evaluate
 
-    from biped_switch import networks
+    runs = pathlib.Path(runs)
+    found = {n: evaluate.find_policy(n, init, runs) for n in names}
+    missing = [n for n, c in found.items() if c is None]
+    if not missing:
+        return found
+    alt = evaluate.find_policy(stand_in, init, runs) if stand_in is not None else None
+    if alt is None:
+        raise FileNotFoundError(
+            f"no trained {init}-init policy for {', '.join(missing)} under {runs}/ or "
+            f"models/policies/ (train with `python -m biped_switch.train --policy P --init {init}`"
+            + (f"; the stand-in {stand_in!r} is missing too" if stand_in else "") + ")")
+    return {n: c if c is not None else alt for n, c in found.items()}
 
-    factory = networks.make_networks_factory(
-        train_cfg.network, env.cfg.shape.grid_forward * env.cfg.shape.grid_lateral)
-    nets = factory(env.observation_size, env.action_size,
-                   preprocess_observations_fn=running_statistics.normalize
-                   if train_cfg.ppo.normalize_observations else lambda x, _: x)
 
-    def apply(params, obs):
-        logits = nets.policy_network.apply(params[0], params[1], obs)
-        return nets.parametric_action_distribution.mode(logits)
+def _suite_configs(ckpts: dict) -> tuple:
+    """(run config, env overrides) shared by the checkpoints of a suite; a policy whose network or
+    env overrides (action mode, phase clock) differ from the first one's is an error: the suite
+    runs on one env and stacks its parameters."""
+    from biped_switch import train as train_lib
 
-    return apply
+    first, run_cfg, overrides = None, None, None
+    for name, ckpt in ckpts.items():
+        saved = json.loads((ckpt.parent.parent / "config.json").read_text())
+        policy, init = saved.get("policy", name), saved.get("init", "stand")
+        if "env" not in saved:  # run_config would fill in today's defaults, not what it ran with
+            raise ValueError(f"{ckpt} ({name}): its config.json has no env section, so the action "
+                             f"mode and phase clock it was trained with are unknown (a Brax PPO run "
+                             f"from before biped_switch.ppo?); retrain it (`python -m "
+                             f"biped_switch.train --policy {policy} --init {init}`)")
+        cfg = train_lib.run_config(ckpt.parent.parent)
+        ov = train_lib.policy_env_overrides(ckpt)
+        if first is None:
+            first, run_cfg, overrides = (name, ckpt), cfg, ov
+            continue
+        net, net0 = cfg.network.to_dict(), run_cfg.network.to_dict()
+        diff = {k: (net.get(k), net0.get(k)) for k in sorted(set(net) | set(net0))
+                if net.get(k) != net0.get(k)}
+        if diff:
+            raise ValueError(f"{ckpt} ({name}): network config {diff} (this policy, {first[0]}) "
+                             f"differs from the suite's first policy {first[1]}")
+        diff = {k: (ov.get(k), overrides.get(k)) for k in sorted(set(ov) | set(overrides))
+                if ov.get(k) != overrides.get(k)}
+        if diff:
+            raise ValueError(f"{ckpt} ({name}): env overrides {diff} (this policy, {first[0]}) "
+                             f"differ from the suite's first policy {first[1]}; every policy of a "
+                             f"suite must be trained with the same action mode and phase clock")
+    return run_cfg, overrides
+
+
+def suite_env_overrides(init: str, runs: str | pathlib.Path = "runs", stand_in: str | None = None,
+                        names: tuple = POLICY_NAMES) -> dict:
+    """Env-config overrides (action mode, phase clock; never the backend) that the suite
+    `load_suite(init, ..., runs, stand_in, names)` needs: build its env with them."""
+    return _suite_configs(find_suite(init, runs, stand_in, names))[1]
+
+
+class _PolicyObsEnv(NamedTuple):
+    """What the policy networks read of an env, with the observation cut to the policy columns
+    (an env with the DQN's detector one-hot has 3 more, which the policies never saw)."""
+
+    cfg: object
+    observation_size: int
+    action_size: int
 
 
 def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
@@ -71,37 +124,39 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
     """The four policies of an init mode (latest checkpoints under runs/ or models/policies/), or
     those of `names` in that order (("mixed",): the end-to-end baseline as a one-policy suite).
 
-    A missing policy is an error, unless `stand_in` names a policy to use in its place; that is
-    for exercising the pipeline before every policy is trained, and the substitution is recorded in
-    `sources` (and so in every result's metadata) and printed."""
-    from biped_switch import evaluate
+    `env` must be made with the suite's env overrides (`suite_env_overrides`, also returned as
+    `PolicySuite.env_overrides`); the suite's `apply` reads the first `env.policy_observation_size`
+    columns of whatever observation it is given. A missing policy is an error, unless `stand_in`
+    names a policy to use in its place; that is for exercising the pipeline before every policy
+    is trained, and the substitution is recorded in `sources` (and so in every result's metadata)
+    and printed."""
     from biped_switch import train as train_lib
 
-    found = {n: evaluate.find_policy(n, init, pathlib.Path(runs)) for n in names}
-    if stand_in is not None and stand_in not in found:
-        found[stand_in] = evaluate.find_policy(stand_in, init, pathlib.Path(runs))
-    missing = [n for n, c in found.items() if c is None]
-    if missing and (stand_in is None or found.get(stand_in) is None):
-        raise FileNotFoundError(
-            f"no trained {init}-init policy for {', '.join(missing)} under {runs}/ or "
-            f"models/policies/ (train with `python -m biped_switch.train --policy P --init {init}`"
-            + (f"; the stand-in {stand_in!r} is missing too" if stand_in else "") + ")")
-    params, sources, run_cfg = [], [], None
+    found = find_suite(init, runs, stand_in, names)
+    run_cfg, overrides = _suite_configs(found)
+    wrong = {k: (env.cfg[k], v) for k, v in overrides.items() if env.cfg[k] != v}
+    if wrong:
+        raise ValueError(f"the env's {wrong} (env, policies) differ from what the {init}-init "
+                         f"policies ({found[names[0]]}, ...) were trained with; make the env with "
+                         f"policies.suite_env_overrides")
+    params, sources = [], []
     for n in names:
-        ckpt = found[n] if found[n] is not None else found[stand_in]
-        p, prog = train_lib.load_checkpoint(ckpt)
-        cfg = json.loads((ckpt.parent.parent / "config.json").read_text())
-        if run_cfg is None:
-            run_cfg = cfg
-        elif cfg["network"] != run_cfg["network"]:
-            raise ValueError(f"{ckpt}: network sizes differ from the suite's first policy")
-        params.append((p[0], p[1]))
+        ckpt = found[n]
+        tree, prog = train_lib.load_checkpoint(ckpt)
+        if not (isinstance(tree, dict) and {"params", "norm"} <= set(tree)):
+            raise ValueError(f"{ckpt}: not a checkpoint of biped_switch.train (a "
+                             f"{type(tree).__name__} without params/norm: Brax's format?)")
+        # the deterministic action needs the policy network and the normaliser only
+        params.append({"params": {"policy": tree["params"]["policy"]}, "norm": tree["norm"]})
         src = f"{ckpt} (step {prog['step']:,}, curriculum {prog['curriculum']['stage_name']})"
-        if found[n] is None:
+        if ckpt.parent.parent.name != f"{n}_{init}":
             src = f"stand-in for {n}: {src}"
             print(f"WARNING: no {init}-init {n} policy; using {stand_in} in its place", file=sys.stderr)
         sources.append(src)
-    train_cfg = train_lib.default_train_config()
-    train_cfg.network.update(**{k: tuple(v) for k, v in run_cfg["network"].items()})
-    train_cfg.ppo.normalize_observations = run_cfg["ppo"]["normalize_observations"]
-    return PolicySuite(brax_apply(train_cfg, env), stack(params), tuple(sources))
+    n_obs = env.policy_observation_size
+    inner = train_lib.policy_apply(run_cfg, _PolicyObsEnv(env.cfg, n_obs, env.action_size))
+
+    def apply(p, obs):
+        return inner(p, obs[..., :n_obs])
+
+    return PolicySuite(apply, stack(params), tuple(sources), dict(overrides))

@@ -3,10 +3,11 @@
     python -m biped_switch.render --policy stairs [--init stand] [--seconds 8] [--out clip.gif]
     python -m biped_switch.render --scripted --kind mixed        # the scripted standing controller
 
-The rollout runs in the MJX environment; its joint trajectory is then replayed on a CPU MuJoCo
-model compiled with that episode's boxes and drawn by a camera that follows the pelvis. Needs an
-OpenGL backend: EGL on a GPU host, OSMesa on a CPU host (`MUJOCO_GL=osmesa`, Debian's libosmesa6;
-`make render-deps` installs it). A `.mp4` output needs imageio-ffmpeg; `.gif` needs only Pillow.
+The rollout runs in the environment (physics `--backend`, and the env overrides the policy was
+trained with); its joint trajectory is then replayed on a CPU MuJoCo model compiled with that
+episode's boxes and drawn by a camera that follows the pelvis. Needs an OpenGL backend: EGL on a
+GPU host, OSMesa on a CPU host (`MUJOCO_GL=osmesa`, Debian's libosmesa6; `make render-deps`
+installs it). A `.mp4` output needs imageio-ffmpeg; `.gif` needs only Pillow.
 """
 
 from __future__ import annotations
@@ -104,6 +105,9 @@ def main(argv=None) -> int:
     p.add_argument("--runs", default="runs")
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--seed", type=int, default=0)
+    # the choices are spelled out: importing env.BACKENDS here would import mujoco before _gl_default
+    p.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"),
+                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     if not a.scripted and a.policy is None:
@@ -115,18 +119,21 @@ def main(argv=None) -> int:
     from biped_switch import evaluate, train as train_lib
 
     kind = a.kind or a.policy or "mixed"
-    env = env_lib.make_env(kind, a.init, n_tracks=1, seed=evaluate.EVAL_TRACK_SEED + a.seed)
-    act = None
+    ckpt, overrides = None, {}
     if not a.scripted:
         ckpt = evaluate.find_policy(a.policy, a.init, pathlib.Path(a.runs))
         if ckpt is None:
             p.error(f"no trained {a.policy}/{a.init} policy under {a.runs}/ or models/policies/")
-        act, _ = train_lib.load_policy(ckpt, env)
+        overrides = train_lib.policy_env_overrides(ckpt)
+    env = env_lib.make_env(kind, a.init, n_tracks=1, seed=evaluate.EVAL_TRACK_SEED + a.seed,
+                           backend=a.backend, **overrides)
+    act = None if ckpt is None else train_lib.load_policy(ckpt, env)[0]
     qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
     fps = 1.0 / (2 * env.dt)
     out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")
     write(frames(qpos, boxes), out, fps)
-    print(f"wrote {out} ({len(qpos)} steps, {jax.devices()[0].platform}); final metrics {metrics}")
+    print(f"wrote {out} ({len(qpos)} steps, {env.backend} backend on {jax.devices()[0].platform}); "
+          f"final metrics {metrics}")
     return 0
 
 

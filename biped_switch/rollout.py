@@ -17,16 +17,19 @@ PolicyFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs batch, rng) -> ac
 
 
 def rollout(env, policy: PolicyFn, rng: jax.Array, n_envs: int, horizon: int,
-            track_ids: jax.Array | None = None) -> dict:
+            track_ids: jax.Array | None = None, reset_args: dict | None = None) -> dict:
     """Per-episode `reward` (sum), `length` (live steps), `done`, and every final metric.
 
-    `track_ids` (n_envs,) picks each episode's track from the env's bank; default: random."""
+    `track_ids` (n_envs,) picks each episode's track from the env's bank; default: random.
+    `reset_args` (e.g. the curriculum's difficulty, guide_scale, push_scale; traced ok) go to
+    every `env.reset`."""
     k_reset, k_run = jax.random.split(rng)
     keys = jax.random.split(k_reset, n_envs)
+    kw = reset_args or {}
     if track_ids is None:
-        state = jax.vmap(env.reset)(keys)
+        state = jax.vmap(lambda k: env.reset(k, **kw))(keys)
     else:
-        state = jax.vmap(lambda k, i: env.reset(k, track_id=i))(keys, track_ids)
+        state = jax.vmap(lambda k, i: env.reset(k, track_id=i, **kw))(keys, track_ids)
 
     def body(carry, key):
         state, total, length, ended, metrics = carry

@@ -38,6 +38,7 @@ from biped_switch import env as env_lib
 from biped_switch import policies as pol
 from biped_switch import terrain
 from biped_switch.config import default_sweep_config, default_terrain_config
+from biped_switch.estimator import HM_SIZE
 from biped_switch.rollout import over_devices
 from biped_switch.switching import smoothed_success_pct
 
@@ -211,11 +212,13 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
             "steps_past": lab.steps}
 
 
-def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0):
+def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
+    """Single-artifact `target` tracks SWEEP_TRACK_SEED + i; `overrides` (env config: the physics
+    `backend`, the suite's action mode and phase clock) go to `env.make_env`."""
     tcfg = default_terrain_config()
     tcfg.n_artifacts = 1
     return env_lib.make_env(target, init, terrain_cfg=tcfg, n_tracks=n_tracks,
-                            seed=SWEEP_TRACK_SEED, difficulty=difficulty)
+                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
 
 
 def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0):
@@ -295,8 +298,11 @@ def plot_switch_success(tables: dict, path: pathlib.Path, title: str = "",
 
 # ----------------------------------------------------------------------- the sweep driver
 def _split(window: np.ndarray):
-    state = window[..., : env_lib.STATE_SIZE].astype(np.float32)
-    hm = window[..., env_lib.STATE_SIZE:].astype(np.float16)
+    """(robot state, heightmap) of observations: exactly the estimator's inputs (51 + 2400), without
+    the phase clock or any other columns the env appends after the heightmap."""
+    s = env_lib.STATE_SIZE
+    state = window[..., :s].astype(np.float32)
+    hm = window[..., s:s + HM_SIZE].astype(np.float16)
     return state, hm
 
 
@@ -347,8 +353,9 @@ class SweepRun(NamedTuple):
 
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
               n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
-              print_fn=print) -> SweepRun:
-    """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind.
+              print_fn=print, backend: str = "auto") -> SweepRun:
+    """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind, on the
+    physics `backend`, in an env with the policy suite's env overrides.
 
     part_dir/meta.json keeps `wall_s_total`, the sum of the wall times of the sessions that ran
     batches; it is updated after every part and on an exception, so an interrupted session's time
@@ -358,11 +365,14 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
         raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
     part_dir = out_dir / init / target
     part_dir.mkdir(parents=True, exist_ok=True)
-    env = make_env(target, init, n_tracks, cfg.difficulty)
+    env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend,
+                   **pol.suite_env_overrides(init, runs, stand_in=stand_in))
     suite = pol.load_suite(init, env, runs, stand_in=stand_in)
     meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
             "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
-            "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale}
+            "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale,
+            "env_overrides": dict(suite.env_overrides),
+            "backend": env_lib.resolve_backend(backend)}
     meta_path = part_dir / "meta.json"
     wall0 = 0.0
     if meta_path.exists():
@@ -518,6 +528,8 @@ def main(argv=None) -> int:
     p.add_argument("--guide-scale", type=float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
     p.add_argument("--difficulty", type=float, default=None, help="terrain difficulty (default 1)")
+    p.add_argument("--backend", default="auto", choices=("auto",) + env_lib.BACKENDS,
+                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     a = p.parse_args(argv)
     cfg = default_sweep_config()
     if a.points is not None:
@@ -538,14 +550,16 @@ def main(argv=None) -> int:
         print(f"sweep {a.init}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
               f"{jax.local_device_count()} {jax.devices()[0].platform} device(s)", flush=True)
         run = run_sweep(a.init, target, cfg, out, a.runs, a.seed, a.tracks, a.stand_in,
-                        a.guide_scale, print_fn=lambda *s: print(*s, flush=True))
+                        a.guide_scale, print_fn=lambda *s: print(*s, flush=True),
+                        backend=a.backend)
         data[target] = load_data(run.path)
         stats[target] = {**data_stats(data[target], run.path, run.wall_s_total),
                          "points_new": run.points_new, "session_s": round(run.session_s, 1),
                          "loop_s": round(run.loop_s, 1),
                          "points_per_s": rate_or_none(run.points_new, run.loop_s),
                          "points_per_s_steady": rate_or_none(run.steady_points, run.steady_s),
-                         "device": str(jax.devices()[0])}
+                         "device": str(jax.devices()[0]),
+                         "backend": env_lib.resolve_backend(a.backend)}
         print(json.dumps({"sweep": f"{a.init}/{target}", **stats[target]}), flush=True)
     for target in terrain.ARTIFACT_KINDS:  # the lookup table covers every target swept so far
         path = out / a.init / f"{target}.npz"

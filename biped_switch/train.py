@@ -31,9 +31,12 @@ import jax
 import numpy as np
 from ml_collections import config_dict
 
+import jax.numpy as jnp
+
 from biped_switch import curriculum as curr_lib
 from biped_switch import env as env_lib
-from biped_switch import networks
+from biped_switch import model as model_lib
+from biped_switch import ppo
 from biped_switch.config import default_curriculum_config
 from biped_switch.rollout import rollout, summarize
 
@@ -41,58 +44,91 @@ POLICIES = ("walk", "jumps", "gaps", "stairs")
 # "mixed": the end-to-end baseline (issue 5), one policy trained on multi-artifact tracks with the
 # same reward and guided curriculum
 TRAIN_KINDS = POLICIES + ("mixed",)
+COMMITTED_DIR = model_lib.MODELS_DIR / "policies"  # latest checkpoint of every run, committed
 
 
 def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
-    """PPO, network and schedule; `preset` "cpu" shrinks batch sizes for a 2-core machine."""
+    """PPO (ppo.py), network and schedule; `preset` "cpu" sizes the batch for a 2-core machine.
+
+    `env` holds env-config overrides the policy is trained (and so must be evaluated) with: the
+    action mode, the phase clock and the physics backend ("auto": mujoco on a CPU)."""
     cfg = config_dict.create(
         policy="walk",
         init="stand",
         seed=0,
         total_timesteps=100_000_000,
-        chunk_timesteps=5_000_000,
+        chunk_timesteps=5_000_000,  # env steps between curriculum checks and checkpoints
         n_tracks=256,
         episode_length=1000,  # control steps (20 s)
-        log_per_chunk=4,
+        log_every=10,  # iterations between progress lines
+        warm_start="",  # a checkpoint directory whose parameters start this run (e.g. walk's)
+        env=config_dict.create(backend="auto", action="pd", pd_offset="gait", phase_obs=True),
         ppo=config_dict.create(
-            num_envs=4096, batch_size=512, num_minibatches=32, unroll_length=20,
-            num_updates_per_batch=4, learning_rate=3e-4, entropy_cost=1e-3, discounting=0.99,
+            num_envs=4096, unroll_length=20, num_minibatches=32, num_updates_per_batch=4,
+            learning_rate=3e-4, entropy_cost=1e-3, value_cost=0.5, discounting=0.99,
             gae_lambda=0.95, clipping_epsilon=0.2, reward_scaling=0.1, max_grad_norm=1.0,
-            normalize_observations=True,
+            init_action_std=0.5,
         ),
         network=config_dict.create(policy_hidden=(256, 256), value_hidden=(256, 256),
-                                   hm_hidden=(128, 64)),
+                                   encoding="pool", pool=(2, 8), hm_hidden=(128, 64)),
         eval=config_dict.create(n_envs=256, horizon_steps=500),
         curriculum=default_curriculum_config(),
         start=config_dict.create(stage=0, difficulty=0.0, guide_scale=1.0, push_scale=0.0),
     )
     if preset == "cpu":
-        cfg.chunk_timesteps = 100_000
-        cfg.total_timesteps = 2_000_000
+        cfg.chunk_timesteps = 1_000_000
+        cfg.total_timesteps = 100_000_000
         cfg.n_tracks = 32
-        cfg.ppo.update(num_envs=32, batch_size=32, num_minibatches=4, unroll_length=16)
-        cfg.eval.update(n_envs=32, horizon_steps=250)
+        cfg.ppo.update(num_envs=256, unroll_length=32, num_minibatches=4)
+        cfg.eval.update(n_envs=64, horizon_steps=250)
     elif preset != "gpu":
         raise ValueError(f"unknown preset {preset!r}; expected 'gpu' or 'cpu'")
     return cfg
 
 
-def make_env(cfg, cs: curr_lib.CurriculumState) -> env_lib.BipedEnv:
+def make_env(cfg) -> env_lib.BipedEnv:
+    """The training env of a run config; the curriculum's values enter as traced arguments."""
     if cfg.policy not in TRAIN_KINDS:
         raise ValueError(f"unknown policy {cfg.policy!r}; expected one of {TRAIN_KINDS}")
     return env_lib.make_env(cfg.policy, cfg.init, curriculum_cfg=cfg.curriculum,
-                            n_tracks=cfg.n_tracks, seed=cfg.seed, difficulty=float(cs.difficulty),
-                            guide_scale=float(cs.guide_scale), push_scale=float(cs.push_scale))
+                            n_tracks=cfg.n_tracks, seed=cfg.seed, **dict(cfg.env))
 
 
-def _save(run_dir: pathlib.Path, step: int, params, progress: dict) -> pathlib.Path:
+def run_config(run_dir: pathlib.Path) -> config_dict.ConfigDict:
+    """The train config a run was made with (its config.json over today's defaults)."""
+    saved = json.loads((run_dir / "config.json").read_text())
+    cfg = default_train_config()
+    for section in ("env", "network", "ppo"):
+        for k, v in saved.get(section, {}).items():
+            if k in cfg[section]:
+                cfg[section][k] = tuple(v) if isinstance(v, list) else v
+    for k in ("policy", "init", "episode_length"):
+        if k in saved:
+            cfg[k] = saved[k]
+    return cfg
+
+
+def policy_env_overrides(ckpt: pathlib.Path) -> dict:
+    """Env-config overrides a checkpoint's policy needs (action mode, phase clock)."""
+    env = dict(run_config(ckpt.parent.parent).env)
+    env.pop("backend", None)  # physics backend: the evaluator's choice
+    return env
+
+
+def _save(run_dir: pathlib.Path, step: int, state, progress: dict, keep: int = 2) -> pathlib.Path:
+    """Orbax checkpoint <run>/checkpoints/<step>/ (parameters, optimiser state, normaliser) with
+    progress.json beside it; older checkpoints beyond the last `keep` are removed."""
+    import shutil
+
     import orbax.checkpoint as ocp
-    from flax.training import orbax_utils
 
     path = run_dir / "checkpoints" / f"{step:012d}"
-    ocp.PyTreeCheckpointer().save(path.resolve(), params, force=True,
-                                  save_args=orbax_utils.save_args_from_target(params))
+    tree = {"params": state.params, "opt_state": state.opt_state, "norm": state.norm._asdict()}
+    ocp.PyTreeCheckpointer().save(path.resolve(), tree, force=True)
     (path / "progress.json").write_text(json.dumps(progress, indent=2))
+    ckpts = sorted(p for p in (run_dir / "checkpoints").glob("[0-9]" * 12))
+    for old in ckpts[:-keep]:
+        shutil.rmtree(old, ignore_errors=True)
     return path
 
 
@@ -101,36 +137,60 @@ def latest_checkpoint(run_dir: pathlib.Path) -> pathlib.Path | None:
     return ckpts[-1] if ckpts else None
 
 
-def load_checkpoint(path: pathlib.Path):
-    """(params, progress dict) of a checkpoint directory written by `train`."""
-    from brax.training import checkpoint as brax_ckpt
+def load_checkpoint(path: pathlib.Path, template=None):
+    """(state tree {params, opt_state, norm}, progress dict) of a checkpoint written by `train`.
+    With `template` (a ppo.TrainState), the tree is restored into its structure."""
+    import orbax.checkpoint as ocp
 
-    return brax_ckpt.load(path.resolve()), json.loads((path / "progress.json").read_text())
+    ckptr = ocp.PyTreeCheckpointer()
+    if template is not None:
+        item = {"params": template.params, "opt_state": template.opt_state,
+                "norm": template.norm._asdict()}
+        tree = ckptr.restore(path.resolve(), item=item)
+    else:
+        tree = ckptr.restore(path.resolve())
+    return tree, json.loads((path / "progress.json").read_text())
 
 
-def make_inference(cfg, env, params, deterministic: bool = True):
-    """A batched policy (obs, rng) -> action from trained parameters."""
-    from brax.training.acme import running_statistics
+def restore(ckpt: pathlib.Path, template: "ppo.TrainState"):
+    """(TrainState, progress) of a checkpoint: parameters, optimiser moments and normaliser, in
+    the structure of `template` (a fresh `Trainer.init` of the same config)."""
+    tree, prog = load_checkpoint(ckpt, template)
+    norm = ppo.Normalizer(**{k: jnp.asarray(v) for k, v in tree["norm"].items()})
+    return ppo.TrainState(tree["params"], tree["opt_state"], norm), prog
 
-    factory = networks.make_networks_factory(cfg.network, env.cfg.shape.grid_forward
-                                             * env.cfg.shape.grid_lateral)
-    nets = factory(env.observation_size, env.action_size,
-                   preprocess_observations_fn=running_statistics.normalize
-                   if cfg.ppo.normalize_observations else lambda x, _: x)
-    from brax.training.agents.ppo import networks as ppo_networks
 
-    infer = ppo_networks.make_inference_fn(nets)((params[0], params[1]), deterministic=deterministic)
-    return lambda obs, key: infer(obs, key)[0]
+def policy_apply(cfg, env):
+    """The deterministic policy of a run config as a pure function (params, obs (B, O)) -> (B, 12),
+    params = {"params": ..., "norm": ...} as `load_checkpoint` gives them."""
+    pol = ppo.make_policy(cfg.network, env)
+
+    def apply(params, obs):
+        n = params["norm"]
+        norm = ppo.Normalizer(jnp.asarray(n["mean"]), jnp.asarray(n["var"]), jnp.asarray(n["count"]))
+        return jnp.clip(pol(params["params"], norm, obs, None, True), -1.0, 1.0)
+
+    return apply
 
 
 def load_policy(ckpt: pathlib.Path, env, deterministic: bool = True):
-    """(batched policy, progress dict) of a checkpoint, with the network sizes its run used."""
-    params, progress = load_checkpoint(ckpt)
-    run_cfg = json.loads((ckpt.parent.parent / "config.json").read_text())
-    cfg = default_train_config()
-    cfg.network.update(**{k: tuple(v) for k, v in run_cfg["network"].items()})
-    cfg.ppo.normalize_observations = run_cfg["ppo"]["normalize_observations"]
-    return make_inference(cfg, env, params, deterministic), progress
+    """(batched policy (obs, rng) -> action, progress dict) of a checkpoint, with its run's network.
+    `env` must have been made with `policy_env_overrides(ckpt)`."""
+    tree, progress = load_checkpoint(ckpt)
+    cfg = run_config(ckpt.parent.parent)
+    need = policy_env_overrides(ckpt)
+    wrong = {k: (env.cfg[k], v) for k, v in need.items() if env.cfg[k] != v}
+    if wrong:
+        raise ValueError(f"{ckpt}: the env's {wrong} (env, policy) differ from what the policy "
+                         f"was trained with; make the env with train.policy_env_overrides")
+    apply = policy_apply(cfg, env)
+    pol = ppo.make_policy(cfg.network, env)
+    params = {"params": tree["params"], "norm": tree["norm"]}
+    if deterministic:
+        return (lambda obs, key: apply(params, obs)), progress
+    n = tree["norm"]
+    norm = ppo.Normalizer(jnp.asarray(n["mean"]), jnp.asarray(n["var"]), jnp.asarray(n["count"]))
+    return (lambda obs, key: jnp.clip(pol(tree["params"], norm, obs, key, False), -1, 1)), progress
 
 
 class Logger:
@@ -178,100 +238,163 @@ class Logger:
             self.tb.flush()
 
 
+def _restore_committed(run_dir: pathlib.Path, print_fn) -> None:
+    """A run absent from runs/ resumes from its committed copy under models/policies/."""
+    import shutil
+
+    committed = COMMITTED_DIR / run_dir.name
+    if latest_checkpoint(run_dir) is None and latest_checkpoint(committed) is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for item in committed.iterdir():
+            dst = run_dir / item.name
+            if item.is_dir():
+                shutil.copytree(item, dst, dirs_exist_ok=True)
+            else:
+                shutil.copy2(item, dst)
+        print_fn(f"no checkpoint under {run_dir}: resuming from the committed {committed}")
+
+
+def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None) -> pathlib.Path:
+    """Copies a run's latest checkpoint, config, metrics and curves to models/policies/<run>/
+    (only the latest checkpoint), for a later session or a fresh clone to resume from."""
+    import shutil
+
+    out = out_dir or COMMITTED_DIR / run_dir.name
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is None:
+        raise FileNotFoundError(f"no checkpoint under {run_dir}")
+    if out.exists():
+        shutil.rmtree(out / "checkpoints", ignore_errors=True)
+    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    shutil.copytree(ckpt, out / "checkpoints" / ckpt.name)
+    for name in ("config.json", "metrics.csv", "train.log"):
+        if (run_dir / name).exists():
+            shutil.copy2(run_dir / name, out / name)
+    if (run_dir / "metrics.csv").exists():
+        plot_curves(run_dir, out / "curves.png")
+    return out
+
+
 def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=print,
-          env_fn=make_env) -> dict:
+          env_fn=make_env, on_restore=None) -> dict:
     """Trains (or resumes) until `total_timesteps`; returns the last progress record.
 
-    `env_fn(cfg, curriculum_state)` builds each chunk's environment (tests pass a cheap one)."""
-    from brax.training.agents.ppo import train as ppo
-
+    One env (`env_fn(cfg)`) and one compiled PPO iteration serve the whole run: the curriculum's
+    difficulty, guide and push levels enter as traced arguments. Every `chunk_timesteps` steps a
+    fixed-horizon rollout of the deterministic policy measures the mean reward per step,
+    `curriculum.update` advances a notch on a milestone, and a checkpoint is written.
+    `on_restore(train_state)` is called with the state a resume restored (a hook for tests)."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
+    _restore_committed(run_dir, print_fn)
     logger = Logger(run_dir)
     ckpt = latest_checkpoint(run_dir)
-    params, step, wall_s = None, 0, 0.0
+    env = env_fn(cfg)
+    trainer = ppo.make_train(cfg, env)
+    ts = trainer.init(jax.random.PRNGKey(cfg.seed))
+    step, wall_s, compile_s = 0, 0.0, None
     cs = curr_lib.CurriculumState(**cfg.start)
     if ckpt is not None:
-        params, prog = load_checkpoint(ckpt)
+        ts, prog = restore(ckpt, ts)
+        if on_restore is not None:
+            on_restore(ts)
         step, wall_s = prog["step"], prog["wall_s"]
         cs = curr_lib.CurriculumState.from_dict(prog["curriculum"])
         logger.drop_after(step)
         print_fn(f"resuming {run_dir} at step {step:,} ({ckpt.name}), curriculum {cs.as_dict()}")
+    elif cfg.warm_start:
+        warm, prog = restore(pathlib.Path(cfg.warm_start), ts)
+        ts = ts._replace(params=warm.params, norm=warm.norm)  # fresh optimiser moments
+        print_fn(f"warm start from {cfg.warm_start} (step {prog['step']:,})")
+    (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
     if cfg.policy == "walk" and int(cs.stage) == 0:
-        # flat tracks: difficulty scales nothing, so the terrain stage is moot (also on resume of a
-        # run started before this rule)
+        # flat tracks: difficulty scales nothing, so the terrain stage is moot
         cs = cs._replace(difficulty=1.0)
-    progress = {}
-    chunks = 0
-    factory = None
+
+    def curr_array(c):
+        return jnp.asarray([c.difficulty, c.guide_scale, c.push_scale], jnp.float32)
+
+    @jax.jit
+    def evaluate(params, norm, rng, curr):
+        def act(obs, key):
+            return trainer.policy(params, norm, obs, key, True)
+
+        return rollout(env, act, rng, n_envs=cfg.eval.n_envs, horizon=cfg.eval.horizon_steps,
+                       reset_args={"difficulty": curr[0], "guide_scale": curr[1],
+                                   "push_scale": curr[2]})
+
+    rng = jax.random.PRNGKey(cfg.seed + 7919 * (step // trainer.steps_per_iteration + 1))
+    rng, k = jax.random.split(rng)
+    envs = trainer.reset_envs(k, curr_array(cs))
+    progress, chunks = {}, 0
     while step < cfg.total_timesteps and (max_chunks is None or chunks < max_chunks):
-        env = env_fn(cfg, cs)
-        chunk = int(min(cfg.chunk_timesteps, cfg.total_timesteps - step))
-        t_chunk = time.perf_counter()
-        last = {"t": t_chunk, "steps": 0, "episode": {}}
-
-        def progress_fn(n, metrics, step0=step, cs=cs):
-            # Brax calls this once per epoch with "training/*" metrics, and from its episode-metrics
-            # aggregator with "episode/*" (only once episodes complete); report on the former.
-            if not any(k.startswith("training/") for k in metrics):
-                if "episode/sum_reward" in metrics:
-                    last["episode"] = {k: float(v) for k, v in metrics.items() if np.ndim(v) == 0}
-                return
-            now = time.perf_counter()
-            sps = (n - last["steps"]) / max(now - last["t"], 1e-9)
-            last.update(t=now, steps=n)
-            ep = last["episode"]
-            rew, length = ep.get("episode/sum_reward", np.nan), ep.get("episode/length", np.nan)
-            left = max(cfg.total_timesteps - step0 - n, 0) / max(sps, 1e-9)  # Brax overshoots a little
-            print_fn(f"[{cfg.policy}/{cfg.init}] step {step0 + n:,}  episode reward {rew:.1f}  "
-                     f"length {length:.0f}  stage {curr_lib.STAGES[int(cs.stage)]} "
-                     f"d={float(cs.difficulty):.2f} guide={float(cs.guide_scale):.2f} "
-                     f"push={float(cs.push_scale):.2f}  {sps:,.0f} steps/s  "
-                     f"elapsed {(wall_s + now - t_chunk) / 60:.1f} min  left ~{left / 60:.1f} min")
-            logger.log(step0 + n, {"train/steps_per_s": sps, **cs._asdict(), **ep} | {
-                k: float(v) for k, v in metrics.items() if np.ndim(v) == 0})
-
-        p = cfg.ppo
-        factory = factory or networks.make_networks_factory(
-            cfg.network, env.cfg.shape.grid_forward * env.cfg.shape.grid_lateral)
-        _, params, _ = ppo.train(
-            environment=env, num_timesteps=chunk, num_envs=p.num_envs, episode_length=cfg.episode_length,
-            batch_size=p.batch_size, num_minibatches=p.num_minibatches, unroll_length=p.unroll_length,
-            num_updates_per_batch=p.num_updates_per_batch, learning_rate=p.learning_rate,
-            entropy_cost=p.entropy_cost, discounting=p.discounting, gae_lambda=p.gae_lambda,
-            clipping_epsilon=p.clipping_epsilon, reward_scaling=p.reward_scaling,
-            max_grad_norm=p.max_grad_norm, normalize_observations=p.normalize_observations,
-            network_factory=factory, seed=cfg.seed + step, restore_params=params,
-            num_evals=cfg.log_per_chunk + 1, run_evals=False, log_training_metrics=True,
-            progress_fn=progress_fn)
+        t_chunk, chunk_start = time.perf_counter(), step
+        chunk_end = min(step + cfg.chunk_timesteps, cfg.total_timesteps)
+        curr = curr_array(cs)
+        it, t_log, steps_log, ep_acc = 0, time.perf_counter(), step, {}
+        while step < chunk_end:
+            rng, k = jax.random.split(rng)
+            t0 = time.perf_counter()
+            ts, envs, m = trainer.iteration(ts, envs, k, curr)
+            if compile_s is None:
+                jax.block_until_ready(m)
+                compile_s = time.perf_counter() - t0
+                print_fn(f"[{cfg.policy}/{cfg.init}] compiled the PPO iteration in {compile_s:.1f} s "
+                         f"(once per run; backend {env.backend}, {trainer.steps_per_iteration:,} "
+                         f"env steps per iteration)")
+                t_log = time.perf_counter()
+            step += trainer.steps_per_iteration
+            it += 1
+            m = {k: float(v) for k, v in jax.device_get(m).items()}
+            n_ep = m["episode/count"]
+            for k, v in m.items():  # episode means over the log window, weighted by episodes
+                if k.startswith("episode/") and k != "episode/count":
+                    ep_acc[k] = ep_acc.get(k, 0.0) + v * n_ep
+            ep_acc["episode/count"] = ep_acc.get("episode/count", 0.0) + n_ep
+            if it % cfg.log_every == 0 or step >= chunk_end:
+                ep_n = ep_acc.pop("episode/count")
+                m.update({k: v / max(ep_n, 1.0) for k, v in ep_acc.items()})
+                m["episode/count"] = ep_n
+                if not ep_n:  # no episode ended in the window: no episode statistics to log
+                    m = {k: v for k, v in m.items() if not k.startswith("episode/")}
+                ep_acc = {}
+                now = time.perf_counter()
+                sps = (step - steps_log) / max(now - t_log, 1e-9)
+                t_log, steps_log = now, step
+                left = max(cfg.total_timesteps - step, 0) / max(sps, 1e-9)
+                eps = (f"{int(ep_n)} episodes: reward {m['episode/sum_reward']:.1f} length "
+                       f"{m['episode/length']:.0f} success {m['episode/success']:.2f}" if ep_n
+                       else "no episode ended")
+                print_fn(f"[{cfg.policy}/{cfg.init}] step {step:,}  {eps}  stage {curr_lib.STAGES[int(cs.stage)]} "
+                         f"d={float(cs.difficulty):.2f} guide={float(cs.guide_scale):.2f} "
+                         f"push={float(cs.push_scale):.2f}  {sps:,.0f} steps/s  elapsed "
+                         f"{(wall_s + now - t_chunk) / 3600:.2f} h  left ~{left / 3600:.1f} h")
+                logger.log(step, {"train/steps_per_s": sps, **cs._asdict(), **m})
+        jax.block_until_ready(ts)
         train_s = time.perf_counter() - t_chunk
-        chunk = last["steps"] or chunk  # Brax rounds a chunk up to whole epochs
-        step += chunk
-        # Milestone check: deterministic policy, fixed horizon, current curriculum values.
-        policy = make_inference(cfg, env, params)
         t_eval = time.perf_counter()
-        ev = summarize(jax.jit(functools.partial(rollout, env, policy, n_envs=cfg.eval.n_envs,
-                                                 horizon=cfg.eval.horizon_steps))(
-            jax.random.PRNGKey(cfg.seed + step)), cfg.eval.horizon_steps)
+        rng, k = jax.random.split(rng)
+        ev = summarize(evaluate(ts.params, ts.norm, k, curr), cfg.eval.horizon_steps)
         eval_s = time.perf_counter() - t_eval
         new_cs = curr_lib.update(cs, ev["reward_per_step"], ev["progress_frac"], cfg.curriculum)
         new_cs = curr_lib.CurriculumState(*(np.asarray(v).item() for v in new_cs))
         wall_s += train_s + eval_s
         progress = {"step": step, "wall_s": wall_s, "chunk_train_s": train_s, "chunk_eval_s": eval_s,
-                    "env_steps_per_s": chunk / train_s, "eval": ev,
+                    "env_steps_per_s": (step - chunk_start) / train_s, "compile_s": compile_s, "eval": ev,
                     "curriculum_before": cs.as_dict(), "curriculum": new_cs.as_dict(),
-                    "device": str(jax.devices()[0]), "n_devices": jax.device_count(),
-                    "total_steps": int(cfg.total_timesteps)}  # the run's goal (Table III: finished?)
-        path = _save(run_dir, step, params, progress)
-        logger.log(step, {f"eval/{k}": v for k, v in ev.items()} | {
-            "chunk_env_steps_per_s": chunk / train_s, "wall_s": wall_s} | {
+                    "backend": env.backend, "device": str(jax.devices()[0]),
+                    "n_devices": 1, "total_steps": int(cfg.total_timesteps)}
+        path = _save(run_dir, step, ts, progress)
+        logger.log(step, {f"eval/{k}": v for k, v in ev.items()} | {"wall_s": wall_s} | {
             f"curriculum/{k}": v for k, v in new_cs._asdict().items()})
         print_fn(f"[{cfg.policy}/{cfg.init}] chunk done at step {step:,}: eval reward/step "
-                 f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}, distance {ev['distance_m']:.2f} m; "
-                 f"curriculum {cs.as_dict()['stage_name']} d={float(cs.difficulty):.2f} -> "
-                 f"{new_cs.as_dict()['stage_name']} d={float(new_cs.difficulty):.2f} "
-                 f"guide={float(new_cs.guide_scale):.2f} push={float(new_cs.push_scale):.2f}; "
-                 f"saved {path}")
+                 f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}, success {ev['success']:.2f}, "
+                 f"distance {ev['distance_m']:.2f} m; curriculum {cs.as_dict()['stage_name']} "
+                 f"d={float(cs.difficulty):.2f} -> {new_cs.as_dict()['stage_name']} "
+                 f"d={float(new_cs.difficulty):.2f} guide={float(new_cs.guide_scale):.2f} "
+                 f"push={float(new_cs.push_scale):.2f}; saved {path}")
+        if new_cs != cs:  # episodes under way were drawn at the old levels: start afresh
+            rng, k = jax.random.split(rng)
+            envs = trainer.reset_envs(k, curr_array(new_cs))
         cs = new_cs
         chunks += 1
     return progress
@@ -328,12 +451,23 @@ def main(argv=None) -> int:
     p.add_argument("--policy", default="walk", choices=TRAIN_KINDS,
                    help="a behaviour policy, or mixed: the end-to-end baseline")
     p.add_argument("--init", default="stand", choices=env_lib.INITS)
-    p.add_argument("--preset", default="gpu", choices=("gpu", "cpu"))
+    p.add_argument("--preset", default=None, choices=("gpu", "cpu"),
+                   help="batch sizes; default: cpu on a CPU, gpu on an accelerator")
+    p.add_argument("--backend", default=None, choices=("auto",) + env_lib.BACKENDS,
+                   help="physics backend (default: the config's, auto = mujoco on a CPU)")
+    p.add_argument("--action", default=None, choices=env_lib.ACTIONS,
+                   help="action mode (default pd: joint targets; torque: the paper's)")
+    p.add_argument("--pd-offset", default=None, choices=("gait", "stand"),
+                   help="pd actions: offsets from the scripted gait (default) or the standing pose")
+    p.add_argument("--no-phase", action="store_true", help="no gait phase clock in the observation")
+    p.add_argument("--warm-start", default=None, metavar="CKPT",
+                   help="start a new run from this checkpoint's parameters")
     p.add_argument("--total-steps", type=int, default=None)
     p.add_argument("--chunk-steps", type=int, default=None)
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="runs", help="runs go to OUT/<policy>_<init>")
+    p.add_argument("--name", default=None, help="run folder name (default <policy>_<init>)")
     p.add_argument("--distributed", action="store_true", help="jax.distributed.initialize() first")
     p.add_argument("--plot", metavar="PNG", help="only plot the run's training curves to PNG")
     a = p.parse_args(argv)
@@ -342,13 +476,24 @@ def main(argv=None) -> int:
         return 0
     if a.distributed:
         jax.distributed.initialize()
-    cfg = default_train_config(a.preset)
+    preset = a.preset or ("cpu" if jax.default_backend() == "cpu" else "gpu")
+    cfg = default_train_config(preset)
     cfg.policy, cfg.init, cfg.seed = a.policy, a.init, a.seed
+    if a.backend:
+        cfg.env.backend = a.backend
+    if a.action:
+        cfg.env.action = a.action
+    if a.no_phase:
+        cfg.env.phase_obs = False
+    if a.pd_offset:
+        cfg.env.pd_offset = a.pd_offset
+    if a.warm_start:
+        cfg.warm_start = a.warm_start
     if a.total_steps is not None:
         cfg.total_timesteps = a.total_steps
     if a.chunk_steps is not None:
         cfg.chunk_timesteps = a.chunk_steps
-    run_dir = pathlib.Path(a.out) / f"{a.policy}_{a.init}"
+    run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
     print(f"training {a.policy}/{a.init} on {jax.device_count()} {jax.devices()[0].platform} device(s), "
           f"{cfg.total_timesteps:,} steps in chunks of {cfg.chunk_timesteps:,} -> {run_dir}", flush=True)
     train(cfg, run_dir, a.max_chunks, print_fn=functools.partial(print, flush=True))

@@ -22,14 +22,17 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from biped_switch import env as env_lib  # noqa: E402
 
 B = 4  # envs in the shared batch
+MJX_TORQUE = {"backend": "mjx", "action": "torque", "phase_obs": False}
 TRACK_IDS = np.array([0, 1, 2, 3], np.int32)
 DIFFICULTIES = np.array([1.0, 0.5, 1.0, 0.0], np.float32)
 
 
 @pytest.fixture(scope="session")
 def env():
-    """`mixed` tracks, seeds 0..3, stand init (0.5 s pause), default configs."""
-    return env_lib.make_env("mixed", n_tracks=4)
+    """`mixed` tracks, seeds 0..3, stand init (0.5 s pause), default configs but for the MJX
+    backend and the paper's torque actions without a phase clock, which these tests were written
+    for (test_backends.py runs the `mujoco` backend against this one)."""
+    return env_lib.make_env("mixed", n_tracks=4, **MJX_TORQUE)
 
 
 @pytest.fixture(scope="session")

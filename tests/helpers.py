@@ -62,3 +62,41 @@ def box_intervals_x(boxes: np.ndarray) -> np.ndarray:
     """(N, 2) x-extents of boxes, sorted by x."""
     iv = np.stack([boxes[:, 0] - boxes[:, 3], boxes[:, 0] + boxes[:, 3]], axis=-1)
     return iv[np.argsort(iv[:, 0])]
+
+
+class FakeEnv:
+    """x moves by the mean action; reward 5 per step; episodes end after `end_step` steps. The
+    real observation layout (51 + 60x40), trivial dynamics: for loops that need no physics."""
+
+    observation_size = 2451
+    policy_observation_size = 2451
+    action_size = 12
+    backend = "fake"
+
+    def __init__(self, end_step=8):
+        import types
+
+        self.cfg = types.SimpleNamespace(shape=types.SimpleNamespace(grid_forward=60, grid_lateral=40))
+        self.end_step = end_step
+
+    def reset(self, rng, **_):
+        import jax
+        import jax.numpy as jnp
+        from brax.envs.base import State
+
+        obs = jnp.zeros(2451).at[0].set(jax.random.uniform(rng))
+        z = jnp.zeros(())
+        return State(pipeline_state=jnp.zeros(2), obs=obs, reward=z, done=z,
+                     metrics={"progress_frac": z, "distance_m": z, "fell": z, "success": z},
+                     info={"t": z})
+
+    def step(self, state, action):
+        import jax.numpy as jnp
+
+        t = state.info["t"] + 1
+        x = state.pipeline_state[0] + jnp.mean(action)
+        done = (t >= self.end_step).astype(jnp.float32)
+        metrics = {"progress_frac": t / 10.0, "distance_m": x, "fell": jnp.zeros(()), "success": done}
+        return state.replace(pipeline_state=jnp.stack([x, t]), obs=state.obs.at[1].set(x),
+                             reward=jnp.asarray(5.0), done=done, metrics=metrics,
+                             info={**state.info, "t": t})

@@ -37,6 +37,7 @@ class FakeEnv(Env):
         self.end_step = end_step
 
     observation_size = P_OBS
+    policy_observation_size = P_OBS
     action_size = 12
     backend = "fake"
     dt = 0.02
@@ -174,6 +175,35 @@ def test_input_norm_layout():
     np.testing.assert_allclose(n["std"][STATE_SIZE:P_OBS], hm.std(), rtol=1e-4)
     np.testing.assert_array_equal(n["mean"][P_OBS:], 0.0)
     np.testing.assert_array_equal(n["std"][P_OBS:], 1.0)
+
+
+def test_input_norm_leaves_the_phase_clock_untouched():
+    """With the policies' phase clock (2 columns after the heightmap), the heightmap's shared
+    statistics cover exactly the heightmap columns, and the clock, like the one-hot, is left as
+    it is (mean 0, std 1)."""
+    n_policy = P_OBS + 2
+    x = np.random.default_rng(1).normal(size=(300, n_policy + 3)).astype(np.float32) * 2.0 + 0.5
+    x[:, P_OBS:n_policy] = np.stack([np.sin(np.arange(300)), np.cos(np.arange(300))], axis=1) * 9
+    n = dqn.input_norm(jnp.asarray(x), n_policy, 0.01, P_OBS - STATE_SIZE)
+    hm = x[:, STATE_SIZE:P_OBS]
+    np.testing.assert_allclose(n["mean"][STATE_SIZE:P_OBS], hm.mean(), rtol=1e-4)
+    np.testing.assert_allclose(n["std"][STATE_SIZE:P_OBS], hm.std(), rtol=1e-4)
+    np.testing.assert_array_equal(n["mean"][P_OBS:], 0.0)
+    np.testing.assert_array_equal(n["std"][P_OBS:], 1.0)
+    assert n["mean"].shape == (n_policy + 3,)
+
+
+def test_sizes_follow_the_env_phase_clock():
+    """The policies read env.policy_observation_size columns (with the phase clock); the Q-network
+    reads those and the one-hot, and its heightmap encoder exactly the 2400 heightmap values."""
+    from biped_switch import env as env_lib
+
+    for phase in (True, False):
+        env = env_lib.make_env("mixed", n_tracks=1, phase_obs=phase, detector_one_hot=True)
+        p = STATE_SIZE + 2400 + (2 if phase else 0)
+        assert dqn.policy_obs_size(env) == env.policy_observation_size == p
+        assert dqn.hm_size(env) == 2400
+        assert dqn.q_input_size(env) == p + 3 == env.observation_size
 
 
 def test_sync_target():
@@ -367,8 +397,11 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     ckpt = tmp_path / "checkpoints" / f"{40:012d}"
     saved = json.loads((ckpt / "progress.json").read_text())
     assert saved["step"] == 40 and saved["total_env_steps"] == 120
-    _, q1 = dqn.load_dqn(tmp_path)
+    assert p1["backend"] == "fake" and p1["env_overrides"] == {}
+    _, q1 = dqn.load_dqn(tmp_path, Q_IN)
     assert not np.allclose(np.asarray(q1["norm"]["std"]), 1.0)  # the frozen normaliser was saved
+    with pytest.raises(ValueError, match=f"reads {Q_IN} input columns, the env gives {Q_IN + 2}"):
+        dqn.load_dqn(tmp_path, Q_IN + 2)  # e.g. a suite with the phase clock
     p2 = dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite)
     # resumed: 2 more chunks; the empty buffer refills (4 iterations) before updates resume
     assert p2["step"] == 120 and p2["n_updates"] == 6 + (20 - 4) and p2["wall_s"] > p1["wall_s"]

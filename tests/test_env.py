@@ -15,7 +15,7 @@ from biped_switch import heightmap as hm
 from biped_switch import model as model_lib
 from biped_switch import terrain
 
-from conftest import B, DIFFICULTIES, TRACK_IDS, actions, index
+from conftest import B, DIFFICULTIES, MJX_TORQUE, TRACK_IDS, actions, index
 from helpers import edge_mask, quat_to_pitch_roll_yaw, terrain_height_np
 
 SL = env_lib.STATE_SLICES
@@ -489,7 +489,7 @@ def test_detect_matches_metrics(env, batch0):
 # ----------------------------------------------------------------------------- other configs
 @pytest.fixture(scope="module")
 def random_env():
-    return env_lib.make_env("mixed", init="random", n_tracks=2)
+    return env_lib.make_env("mixed", init="random", n_tracks=2, **MJX_TORQUE)
 
 
 @pytest.fixture(scope="module")
@@ -527,7 +527,7 @@ def test_random_init_has_no_pause(random_env, random_resets):
 
 
 def test_detector_one_hot(batch0):
-    env1 = env_lib.make_env("mixed", n_tracks=1, detector_one_hot=True)
+    env1 = env_lib.make_env("mixed", n_tracks=1, detector_one_hot=True, **MJX_TORQUE)
     assert env1.observation_size == OBS + 3
     s = jax.eval_shape(env1.reset, jax.random.PRNGKey(0))
     assert s.obs.shape == (OBS + 3,)

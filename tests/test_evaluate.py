@@ -36,12 +36,83 @@ def test_episode_table_from_hand_made_rollouts():
     assert t["fail_on"] == {"jumps": 0.0, "gaps": pytest.approx(25.0), "stairs": pytest.approx(25.0)}
 
 
+def test_single_horizon_lets_the_acceptance_speed_finish():
+    """Table I's derived time limit: the pause, then the farthest finish line at 0.6 m/s with a
+    20% margin (gaps tracks reach 42 m: the old fixed 60 s cut a 0.6 m/s walker off at 35 m)."""
+    assert ev.single_horizon_s(27.0, 0.5) == 55.0  # ceil(0.5 + 1.2 * 27 / 0.6) = ceil(54.5)
+    assert ev.single_horizon_s(42.3, 0.0) == 85.0  # ceil(84.6)
+    for finish in (20.0, 27.3, 42.3):
+        h = ev.single_horizon_s(finish, 0.5)
+        assert 0.5 + finish / 0.6 < h <= 0.5 + 1.2 * finish / 0.6 + 1.0
+
+
+def test_speed_table_by_hand():
+    # stand init: 0.5 s pause; 3 episodes of 50 Hz steps: 10 m in 20.5 s alive, 6 m in 10.5 s, and
+    # a fall in the pause (0 m in 0.2 s: the walking time is floored at one step)
+    res = {"distance_m": np.array([10.0, 6.0, 0.0]), "length": np.array([1025, 525, 10]),
+           "success": np.array([1.0, 0.0, 0.0])}
+    t = ev.speed_table(res, 0.02, 0.5)
+    assert t["speed_mps"] == pytest.approx((0.5 + 0.6 + 0.0) / 3)
+    assert t["speed_success_mps"] == pytest.approx(0.5)
+    assert t["speed_alive_mps"] == pytest.approx((10 / 20.5 + 6 / 10.5 + 0.0) / 3)
+    half = 1.96 * np.std([0.5, 0.6, 0.0], ddof=1) / np.sqrt(3)
+    assert t["speed_ci"] == [pytest.approx(t["speed_mps"] - half), pytest.approx(t["speed_mps"] + half)]
+
+
 def test_markdown_row_has_paper_figures():
     row = {"policy": "gaps", "init": "random", "n": 4, "distance_pct": 68.75, "distance_ci": [40, 90],
            "success_pct": 50.0, "success_ci": [15, 85], "train_step": 1000,
            "curriculum": {"stage_name": "terrain", "difficulty": 0.3, "guide_scale": 1.0}}
     md = ev.table1_markdown([row])
     assert "| gaps | random | 4 | 68.8 (40.0-90.0) | 50.0 (15.0-85.0) | 87.4 | 75.5 |" in md
+    row.update(speed_mps=0.61, speed_ci=[0.58, 0.64], horizon_s=85.0, track_seed=123,
+               backend="mujoco")
+    md = ev.table1_markdown([row])
+    assert "| terrain d=0.3 g=1.0 | 0.61 (0.58-0.64) | 85 | 123 | mujoco |" in md
+
+
+def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
+    """`evaluate single --track-seed N`: trial i runs on track N + i (not on the default
+    evaluation tracks), in an env with the policy's env overrides on the chosen backend, and the
+    table and JSON say which tracks, backend and horizon it ran with."""
+    from biped_switch import terrain
+    from biped_switch import train as train_lib
+    from policy_runs import fake_policy_run
+
+    ckpt = fake_policy_run(tmp_path / "runs", "walk")
+    made = []
+    make_env = ev.env_lib.make_env
+
+    def spy(*args, **kw):
+        made.append((kw, make_env(*args, **kw)))
+        return made[-1][1]
+
+    monkeypatch.setattr(ev.env_lib, "make_env", spy)
+    out = tmp_path / "table1"
+    argv = ["single", "--policies", "walk", "--inits", "stand", "--trials", "2", "--batch", "2",
+            "--horizon-s", "0.1", "--track-seed", "123", "--runs", str(tmp_path / "runs"),
+            "--out", str(out)]
+    assert ev.main(argv) == 0
+    (kw, env), = made
+    assert kw["seed"] == 123 and kw["backend"] == "auto"
+    assert {k: kw[k] for k in train_lib.policy_env_overrides(ckpt)} == \
+        train_lib.policy_env_overrides(ckpt)
+
+    def bank(seed):
+        return terrain.stack_tracks([terrain.generate_track(seed + i, "walk", 1.0) for i in range(2)],
+                                    env.biped.box_capacity, env.terrain_cfg.n_artifacts).segments
+
+    np.testing.assert_array_equal(env.bank.segments, bank(123))
+    assert not np.array_equal(env.bank.segments, bank(ev.EVAL_TRACK_SEED))  # other tracks
+    doc = json.loads((out / "table1.json").read_text())
+    row, = doc["rows"]
+    assert doc["settings"]["track_seed"] == doc["track_seed"] == row["track_seed"] == 123
+    assert row["backend"] == env.backend == ev.env_lib.resolve_backend("auto")
+    assert row["horizon_s"] == 0.1 and row["horizon_from"] == "--horizon-s"
+    finish = max(terrain.generate_track(123 + i, "walk", 1.0).finish_x_m for i in range(2))
+    assert row["finish_m_max"] == pytest.approx(finish, abs=1e-4)
+    assert row["n"] == 2 and row["timed_out_pct"] == 100.0 and np.isfinite(row["speed_mps"])
+    assert f"| 0.1 | 123 | {env.backend} |" in (out / "table1.md").read_text()
 
 
 def _fake_run(run_dir, wall_s, device="cuda:0", step=1000, **extra):
@@ -152,9 +223,19 @@ def test_demo_runs_end_to_end_on_the_pipeline_check(tmp_path):
     """`make demo` at a tiny size: table, Fig. 5 and summary written (about 6 min on 2 cores)."""
     from biped_switch import demo
 
+    import shutil
+
+    from biped_switch.model import MODELS_DIR
+    from policy_runs import fake_policy_run
+
+    # a pipeline check in today's checkpoint format: an untrained walk policy, and the committed
+    # estimators (their format did not change)
+    check = tmp_path / "pipeline_check"
+    fake_policy_run(check, "walk")
+    shutil.copytree(MODELS_DIR / "pipeline_check" / "estimators", check / "estimators")
     out = tmp_path / "demo"
     assert demo.main(["--trials", "2", "--horizon-s", "2", "--no-video", "--out", str(out),
-                      "--runs", str(tmp_path / "no_runs")]) == 0
+                      "--runs", str(tmp_path / "no_runs"), "--pipeline-check", str(check)]) == 0
     summary = json.loads((out / "demo_summary.json").read_text())
     assert summary["stand_ins"] and summary["trials"] == 2 and summary["n_artifacts"] == 2
     md = (out / "table2_demo.md").read_text()

@@ -60,3 +60,36 @@ def test_frames_show_the_robot_and_track():
     assert out["n"] == 2 and out["shape"] == [120, 160, 3]
     assert all(f > 0.2 for f in out["non_sky"]), out  # robot and terrain fill a good part
     assert out["differ"] > 1.0, out  # consecutive frames are not the same picture
+
+
+def test_main_runs_the_policy_in_the_env_it_was_trained_for(tmp_path, monkeypatch):
+    """`render --policy P` builds its env with the policy's env overrides (here the paper's torque
+    actions without a phase clock, not today's defaults) on the chosen backend; the drawing is
+    patched out (no OpenGL needed)."""
+    from biped_switch import env as env_lib
+    from policy_runs import fake_policy_run
+
+    fake_policy_run(tmp_path / "runs", "walk", env={"action": "torque", "phase_obs": False})
+    seen = {}
+    record = render.record
+
+    def spy_record(env, act, seconds, seed=0, track_id=0):
+        seen["env"] = env
+        return record(env, act, seconds, seed, track_id)
+
+    def fake_frames(qpos, boxes, *args, **kw):
+        seen["qpos"] = qpos
+        return [np.zeros((4, 4, 3), np.uint8)] * 2
+
+    monkeypatch.setattr(render, "_gl_default", lambda: None)
+    monkeypatch.setattr(render, "record", spy_record)
+    monkeypatch.setattr(render, "frames", fake_frames)
+    out = tmp_path / "clip.gif"
+    assert render.main(["--policy", "walk", "--runs", str(tmp_path / "runs"), "--seconds", "0.1",
+                        "--backend", "mujoco", "--out", str(out)]) == 0
+    env = seen["env"]
+    assert (env.cfg.action, env.cfg.phase_obs, env.backend) == ("torque", False, "mujoco")
+    # the reset state and 5 steps, all in the standing pause (nothing falls)
+    assert seen["qpos"].shape == (6, env.biped.mj_model.nq)
+    assert out.stat().st_size > 0
+    assert env_lib.BACKENDS == ("mujoco", "mjx")  # render's --backend choices spell these out

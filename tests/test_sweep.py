@@ -236,6 +236,17 @@ def test_sweep_batch_window_and_label_against_reference_loop(env, fns, guided_ba
     assert set(labels) == {False, True}, labels  # both labels checked against the reference
 
 
+def test_split_keeps_exactly_state_and_heightmap():
+    """The estimator's inputs are the robot state (51) and the heightmap (2400): the phase clock
+    and the detector one-hot that an env may append after the heightmap are left out."""
+    s, hm = sweep.env_lib.STATE_SIZE, 60 * 40
+    obs = np.arange(2 * 5 * (s + hm + 2 + 3), dtype=np.float32).reshape(2, 5, -1) % 1000
+    state, heightmap = sweep._split(obs)
+    assert state.shape == (2, 5, s) and heightmap.shape == (2, 5, hm)
+    np.testing.assert_array_equal(state, obs[..., :s])
+    np.testing.assert_array_equal(heightmap, obs[..., s:s + hm].astype(np.float16))
+
+
 # ----------------------------------------------------------------------- resuming (no MJX)
 class _Clock:
     """A fake time.perf_counter: setup costs 1 s, each batch 10 s."""
@@ -252,15 +263,20 @@ def fake_sweep(monkeypatch):
     """run_sweep with the env, the policies and the jitted batch replaced by stand-ins: track i
     gives a valid sample unless i % 3 == 0, labelled i % 2 == 0. `calls` lists the batch index of
     every batch run; `fail_at` makes the n-th batch call raise (an interrupted session)."""
-    clock, calls, fail_at = _Clock(), [], []
+    clock, calls, fail_at, env_kw = _Clock(), [], [], []
     batch = 6
+    overrides = {"action": "pd", "phase_obs": True}
 
-    def make_env(target, init, n_tracks, difficulty):
+    def make_env(target, init, n_tracks, difficulty, **kw):
         clock.t += 1.0
+        env_kw.append(kw)
         return object()
 
+    def suite_env_overrides(init, runs, stand_in=None):
+        return dict(overrides)
+
     def load_suite(init, env, runs, stand_in=None):
-        return pol.PolicySuite(None, None, tuple(f"ckpt_{n}" for n in pol.POLICY_NAMES))
+        return pol.PolicySuite(None, None, tuple(f"ckpt_{n}" for n in pol.POLICY_NAMES), overrides)
 
     def make_runner(env, apply, target, cfg, guide_scale=0.0):
         def run(params, rng, ids, src):
@@ -278,6 +294,7 @@ def fake_sweep(monkeypatch):
     monkeypatch.setattr(sweep, "time", type("T", (), {"perf_counter": clock.perf_counter}))
     monkeypatch.setattr(sweep, "make_env", make_env)
     monkeypatch.setattr(sweep.pol, "load_suite", load_suite)
+    monkeypatch.setattr(sweep.pol, "suite_env_overrides", suite_env_overrides)
     monkeypatch.setattr(sweep, "make_runner", make_runner)
 
     def cfg(n_points):
@@ -285,7 +302,7 @@ def fake_sweep(monkeypatch):
         c.n_points, c.batch = n_points, batch
         return c
 
-    return {"calls": calls, "fail_at": fail_at, "cfg": cfg, "batch": batch}
+    return {"calls": calls, "fail_at": fail_at, "cfg": cfg, "batch": batch, "env_kw": env_kw}
 
 
 def _meta(path):
@@ -301,6 +318,11 @@ def test_resume_makes_only_missing_points_and_sums_wall_time(fake_sweep, tmp_pat
     assert ref.points_new == 60 and ref.loop_s == 30 and ref.session_s == 31
     assert (ref.steady_points, ref.steady_s) == (40, 20)
     assert ref.wall_s_total == 31 and _meta(tmp_path / "a/stand/gaps")["wall_s_total"] == 31
+    # the env is built with the suite's env overrides and the physics backend, both recorded
+    assert fake_sweep["env_kw"] == [{"backend": "auto", "action": "pd", "phase_obs": True}]
+    meta = _meta(tmp_path / "a/stand/gaps")
+    assert meta["env_overrides"] == {"action": "pd", "phase_obs": True}
+    assert meta["backend"] == sweep.env_lib.resolve_backend("auto")
     # interrupted in its second batch: one part made, 11 s so far
     calls.clear()
     fake_sweep["fail_at"].append(2)

@@ -1,49 +1,18 @@
-"""The trainer's chunk / checkpoint / resume loop and the rollout, on a cheap stand-in env.
-
-The stand-in has the real observation layout (51 + 60x40) but trivial dynamics, so Brax PPO
-compiles in seconds; PPO on the real MJX env is in the slow suite (test_train_real_env).
-"""
+"""The trainer: PPO pieces against Python references, and the chunk / checkpoint / resume loop on
+the real env (the `mujoco` backend compiles the whole PPO iteration in seconds)."""
 
 import json
-import types
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from brax.envs.base import Env, State
 
 from biped_switch import curriculum as cl
+from biped_switch import networks, ppo
 from biped_switch import train as train_lib
 from biped_switch.rollout import rollout, summarize
-
-
-class FakeEnv(Env):
-    """x moves by the mean action; reward 5 per step; episodes end after `end_step` steps."""
-
-    def __init__(self, difficulty=0.0, end_step=8):
-        self.cfg = types.SimpleNamespace(shape=types.SimpleNamespace(grid_forward=60, grid_lateral=40))
-        self.difficulty, self.end_step = difficulty, end_step
-
-    observation_size = 2451
-    action_size = 12
-    backend = "fake"
-
-    def reset(self, rng, **_):
-        obs = jnp.zeros(2451).at[0].set(jax.random.uniform(rng))
-        z = jnp.zeros(())
-        return State(pipeline_state=jnp.zeros(2), obs=obs, reward=z, done=z,
-                     metrics={"progress_frac": z, "distance_m": z, "fell": z, "success": z},
-                     info={"t": z})
-
-    def step(self, state, action):
-        t = state.info["t"] + 1
-        x = state.pipeline_state[0] + jnp.mean(action)
-        done = (t >= self.end_step).astype(jnp.float32)
-        metrics = {"progress_frac": t / 10.0, "distance_m": x, "fell": jnp.zeros(()), "success": done}
-        return state.replace(pipeline_state=jnp.stack([x, t]), obs=state.obs.at[1].set(x),
-                             reward=jnp.asarray(5.0), done=done, metrics=metrics,
-                             info={**state.info, "t": t})
+from helpers import FakeEnv
 
 
 def test_rollout_freezes_each_episode_at_its_end():
@@ -57,65 +26,169 @@ def test_rollout_freezes_each_episode_at_its_end():
     assert s["reward_per_step"] == pytest.approx(1.5)
 
 
-def _tiny_cfg():
+def test_normalizer_matches_numpy_over_all_batches():
+    rng = np.random.default_rng(0)
+    batches = [rng.normal(3.0, 2.0, size=(n, 5)).astype(np.float32) for n in (7, 50, 3)]
+    norm = ppo.Normalizer(jnp.zeros(5), jnp.ones(5), jnp.asarray(1e-8))
+    for b in batches:
+        norm = ppo.update_normalizer(norm, jnp.asarray(b))
+    allb = np.concatenate(batches)
+    np.testing.assert_allclose(norm.mean, allb.mean(0), rtol=1e-4)
+    np.testing.assert_allclose(norm.var, allb.var(0), rtol=1e-3)
+    assert float(norm.count) == pytest.approx(60.0)
+
+
+def test_heightmap_pooling_is_the_block_mean():
+    hm = np.arange(60 * 40, dtype=np.float32).reshape(60, 40) / 2400.0
+    out = np.asarray(networks.encode_heightmap(jnp.asarray(hm.reshape(1, -1)), (60, 40), (2, 8)))
+    assert out.shape == (1, 150)
+    ref = [hm[2 * i:2 * i + 2, 8 * j:8 * j + 8].mean() for i in range(30) for j in range(5)]
+    np.testing.assert_allclose(out[0], ref, rtol=1e-6)
+    with pytest.raises(ValueError, match=r"\(7, 8\)"):
+        networks.encode_heightmap(jnp.asarray(hm.reshape(1, -1)), (60, 40), (7, 8))
+
+
+def _tiny_cfg(policy="gaps"):
     cfg = train_lib.default_train_config("cpu")
-    cfg.policy = "gaps"  # starts the terrain stage at difficulty 0 (walk starts at 1: flat)
-    cfg.total_timesteps, cfg.chunk_timesteps, cfg.log_per_chunk = 40, 40, 1
-    cfg.ppo.update(num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5)
-    cfg.network.update(policy_hidden=(16,), value_hidden=(16,), hm_hidden=(8,))
-    cfg.eval.update(n_envs=4, horizon_steps=8)
-    cfg.episode_length = 8
+    cfg.policy = policy  # gaps starts the terrain stage at difficulty 0 (walk starts at 1: flat)
+    cfg.n_tracks = 2
+    cfg.total_timesteps, cfg.chunk_timesteps, cfg.log_every = 128, 128, 1
+    cfg.ppo.update(num_envs=8, num_minibatches=2, unroll_length=8)
+    cfg.network.update(policy_hidden=(16,), value_hidden=(16,))
+    cfg.eval.update(n_envs=4, horizon_steps=30)
+    cfg.episode_length = 10  # episodes end (truncated) within each 16-step chunk
+    cfg.env.backend = "mujoco"
     return cfg
 
 
-def test_train_chunk_checkpoint_and_resume(tmp_path):
-    seen = []
-
-    def env_fn(cfg, cs):
-        seen.append(cl.CurriculumState(*cs))
-        return FakeEnv(float(cs.difficulty))
-
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """Two chunks on the real env, the second one resumed from the first's checkpoint."""
+    run_dir = tmp_path_factory.mktemp("run") / "gaps_stand"
     cfg = _tiny_cfg()
+    cfg.curriculum.reward_milestone = 0.0  # every chunk advances the curriculum one notch
     lines = []
-    prog = train_lib.train(cfg, tmp_path, env_fn=env_fn, print_fn=lines.append)
-    assert prog["step"] == 40
-    assert prog["eval"]["reward_per_step"] == pytest.approx(5.0)  # every step scores 5
-    # 5 >= the 3.78 milestone, so the curriculum advanced one notch and was saved.
-    assert prog["curriculum"]["difficulty"] == pytest.approx(0.1)
-    ckpt = train_lib.latest_checkpoint(tmp_path)
-    assert ckpt is not None and ckpt.name == f"{40:012d}"
-    params, saved = train_lib.load_checkpoint(ckpt)
-    assert saved["curriculum"] == prog["curriculum"]
-    assert saved["total_steps"] == 40  # the goal, so Table III can tell a finished run
-    leaves = jax.tree.leaves(params)
-    assert leaves and all(np.all(np.isfinite(np.asarray(x))) for x in leaves)
-    assert (tmp_path / "config.json").exists() and json.loads((tmp_path / "config.json").read_text())
+    first = train_lib.train(cfg, run_dir, print_fn=lines.append)
+    ckpt1 = train_lib.latest_checkpoint(run_dir)
+    saved1 = jax.tree.map(np.asarray, train_lib.load_checkpoint(ckpt1)[0])
+    cfg.total_timesteps = 256
+    resumed = []
+    second = train_lib.train(cfg, run_dir, print_fn=lines.append,
+                             on_restore=lambda ts: resumed.append(jax.tree.map(np.asarray, ts)))
+    return {"dir": run_dir, "cfg": cfg, "first": first, "second": second, "lines": lines,
+            "saved1": saved1, "resumed": resumed}
 
-    # Resume: a second run continues from step 40 with the saved curriculum state, and forgets
-    # log rows of an abandoned chunk (here a fake row past the checkpoint).
-    train_lib.Logger(tmp_path).log(60, {"train/steps_per_s": 1.0})
-    cfg.total_timesteps = 80
-    prog2 = train_lib.train(cfg, tmp_path, env_fn=env_fn, print_fn=lines.append)
-    assert any(line.startswith("resuming") for line in lines)
-    assert prog2["step"] == 80 and prog2["total_steps"] == 80
-    assert float(seen[-1].difficulty) == pytest.approx(0.1)
-    assert prog2["curriculum"]["difficulty"] == pytest.approx(0.2)
-    rows = (tmp_path / "metrics.csv").read_text().splitlines()
+
+def test_chunk_checkpoint_records_progress(trained):
+    prog = trained["first"]
+    assert prog["step"] == 128 and prog["total_steps"] == 128
+    assert prog["backend"] == "mujoco"
+    assert prog["curriculum_before"]["difficulty"] == 0.0
+    assert prog["curriculum"]["difficulty"] == pytest.approx(0.1)  # one notch of the milestone
+    assert np.isfinite(prog["eval"]["reward_per_step"])
+    compiled = [ln for ln in trained["lines"] if "compiled the PPO iteration" in ln]
+    assert len(compiled) == 2  # once per run (process), never per chunk
+    cfg_json = json.loads((trained["dir"] / "config.json").read_text())
+    assert cfg_json["env"]["action"] == "pd" and cfg_json["network"]["encoding"] == "pool"
+
+
+def test_resume_restores_optimiser_normaliser_and_curriculum(trained):
+    saved, (resumed,) = trained["saved1"], trained["resumed"]
+    # the optimiser's moments: Adam's mu/nu are non-zero after a chunk, and come back exactly
+    adam = [x for x in jax.tree.leaves(saved["opt_state"]) if x.ndim > 0]
+    assert adam and any(np.abs(x).max() > 0 for x in adam)
+    for a, b in zip(jax.tree.leaves(saved["opt_state"]), jax.tree.leaves(resumed.opt_state)):
+        np.testing.assert_array_equal(a, b)
+    for k in ("mean", "var", "count"):
+        np.testing.assert_array_equal(saved["norm"][k], getattr(resumed.norm, k))
+    assert float(resumed.norm.count) > 100  # it has seen the first chunk's observations
+    for a, b in zip(jax.tree.leaves(saved["params"]), jax.tree.leaves(resumed.params)):
+        np.testing.assert_array_equal(a, b)
+    second = trained["second"]
+    assert any(ln.startswith("resuming") for ln in trained["lines"])
+    assert second["step"] == 256
+    assert second["curriculum_before"]["difficulty"] == pytest.approx(0.1)  # restored, not reset
+    assert second["curriculum"]["difficulty"] == pytest.approx(0.2)
+    assert second["wall_s"] > trained["first"]["wall_s"]
+
+
+def test_metrics_log_and_curves(trained):
+    run_dir = trained["dir"]
+    rows = (run_dir / "metrics.csv").read_text().splitlines()
     header = rows[0].split(",")
     steps = [float(r.split(",")[header.index("step")]) for r in rows[1:]]
-    assert steps == sorted(steps) and 60.0 not in steps
-    assert "eval/reward_per_step" in header and "training/total_loss" in header
-    losses = [r.split(",")[header.index("training/total_loss")] for r in rows[1:]]
-    assert [float(v) for v in losses if v] and all(np.isfinite(float(v)) for v in losses if v)
-    assert (tmp_path / "tb").is_dir()
-    train_lib.plot_curves(tmp_path, tmp_path / "curves.png")
-    assert (tmp_path / "curves.png").stat().st_size > 10_000
+    assert steps == sorted(steps)
+    for key in ("eval/reward_per_step", "loss/policy", "episode/sum_reward", "train/steps_per_s"):
+        assert key in header
+    losses = [r.split(",")[header.index("loss/value")] for r in rows[1:]]
+    assert [v for v in losses if v] and all(np.isfinite(float(v)) for v in losses if v)
+    train_lib.plot_curves(run_dir, run_dir / "curves.png")
+    assert (run_dir / "curves.png").stat().st_size > 10_000
+
+
+def test_committed_copy_resumes_a_fresh_machine(trained, tmp_path, monkeypatch):
+    """With runs/ absent, train resumes from the committed models/policies/<run>/ copy."""
+    committed = tmp_path / "models" / "policies"
+    monkeypatch.setattr(train_lib, "COMMITTED_DIR", committed)
+    out = train_lib.commit_run(trained["dir"])
+    assert out == committed / "gaps_stand"
+    assert [p.name for p in (out / "checkpoints").iterdir()] == [f"{256:012d}"]  # only the latest
+    assert (out / "curves.png").exists() and (out / "config.json").exists()
+    cfg = trained["cfg"]
+    cfg.total_timesteps = 256  # already there: nothing to train, but it must find the run
+    lines = []
+    prog = train_lib.train(cfg, tmp_path / "runs" / "gaps_stand", print_fn=lines.append)
+    assert any("resuming from the committed" in ln for ln in lines)
+    assert train_lib.latest_checkpoint(tmp_path / "runs" / "gaps_stand").name == f"{256:012d}"
+    assert prog == {}  # no chunk ran: the goal was already reached
+
+
+def test_loaded_policy_acts_like_the_trainer(trained):
+    ckpt = train_lib.latest_checkpoint(trained["dir"])
+    env = train_lib.make_env(trained["cfg"])
+    act, progress = train_lib.load_policy(ckpt, env)
+    state = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 3))
+    a = np.asarray(act(state.obs, None))
+    assert a.shape == (3, 12) and np.all(np.abs(a) <= 1.0)
+    tree, _ = train_lib.load_checkpoint(ckpt)
+    pol = ppo.make_policy(trained["cfg"].network, env)
+    norm = ppo.Normalizer(**{k: jnp.asarray(v) for k, v in tree["norm"].items()})
+    ref = np.clip(np.asarray(pol(tree["params"], norm, state.obs, None, True)), -1, 1)
+    np.testing.assert_allclose(a, ref, rtol=1e-5, atol=1e-6)
+    torque_env = train_lib.env_lib.make_env("gaps", n_tracks=1, action="torque")
+    with pytest.raises(ValueError, match="action"):
+        train_lib.load_policy(ckpt, torque_env)
 
 
 def test_unknown_policy_and_preset_are_named():
     cfg = train_lib.default_train_config("cpu")
     cfg.policy = "hop"
     with pytest.raises(ValueError, match="'hop'"):
-        train_lib.make_env(cfg, cl.CurriculumState())
+        train_lib.make_env(cfg)
     with pytest.raises(ValueError, match="'tpu'"):
         train_lib.default_train_config("tpu")
+    cfg = _tiny_cfg()
+    cfg.ppo.num_minibatches = 5
+    with pytest.raises(ValueError, match="5 minibatches"):
+        ppo.make_train(cfg, train_lib.make_env(cfg))
+
+
+def test_gae_masks_truncated_steps_like_a_python_loop():
+    """ppo's GAE recursion against a hand loop: a termination cuts the bootstrap, a truncation
+    zeroes its own delta and the recursion through it (Brax's rule)."""
+    rew = np.array([1.0, 2.0, 0.5, 1.0, 3.0])
+    val = np.array([0.3, 0.1, 0.4, 0.2, 0.6])
+    v_next = np.array([0.1, 0.4, 0.2, 0.6, 0.9])
+    term = np.array([0, 1, 0, 0, 0.0])
+    trunc = np.array([0, 0, 0, 1, 0.0])
+    g, lam = 0.9, 0.8
+    ref, acc = np.zeros(5), 0.0
+    for t in reversed(range(5)):
+        keep = 1 - trunc[t]
+        delta = (rew[t] + g * (1 - term[t]) * v_next[t] - val[t]) * keep
+        acc = delta + g * lam * (1 - term[t]) * keep * acc
+        ref[t] = acc
+    out = np.asarray(ppo.gae(jnp.asarray(rew), jnp.asarray(val), jnp.asarray(v_next),
+                             jnp.asarray(term), jnp.asarray(trunc), g, lam))
+    np.testing.assert_allclose(out, ref, rtol=1e-6)
+    assert out[3] == 0.0 and out[1] == pytest.approx(2.0 - 0.1)

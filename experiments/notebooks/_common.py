@@ -159,7 +159,7 @@ def run_cli(argv: Sequence[str]) -> None:
 def table1_command(results: pathlib.Path, settings: dict | None = None) -> list[str]:
     argv = ["-m", "biped_switch.evaluate", "single", "--out", rel(results / "table1")]
     return argv + _carry(settings, ("policies", "inits", "trials", "batch", "horizon_s", "seed",
-                                    "runs"))
+                                    "track_seed", "backend", "runs"))
 
 
 def table2_command(results: pathlib.Path, settings: dict | None = None) -> list[str]:
@@ -178,7 +178,7 @@ def fig5_command(results: pathlib.Path, trial: int = 0, settings: dict | None = 
 
 
 MULTI_KEYS = ("methods", "trials", "batch", "horizon_s", "n_artifacts", "seed", "runs", "estimators",
-              "dqn", "stand_in", "guide_scale", "fig5_trial")  # evaluate multi's recorded settings
+              "dqn", "stand_in", "guide_scale", "fig5_trial", "backend")  # evaluate multi's settings
 
 
 def table3_command(results: pathlib.Path, runs=None, init: str = "stand") -> list[str]:

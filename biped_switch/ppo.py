@@ -1,0 +1,263 @@
+"""PPO compiled once per run (purejaxrl style): `make_train(cfg, env) -> Trainer`.
+
+Brax's `ppo.train` recompiles on every call (about 3 minutes on the 2-core CPU) and cannot take
+the curriculum's values as traced inputs, and a jitted computation with a host callback (the
+`mujoco` backend) is never put in JAX's persistent compilation cache. So this trainer jits one
+`iteration(state, curriculum) -> (state, metrics)` and calls it for the whole run: a curriculum
+notch, a resume or a new chunk never compiles again.
+
+One iteration: `unroll_length` steps of `num_envs` envs (auto-reset to fresh episodes drawn at the
+current curriculum values; an episode that reaches `episode_length` steps is truncated, and its
+last step is masked out of the advantages, as Brax does), GAE, then `num_updates_per_batch` epochs
+of `num_minibatches` clipped-surrogate minibatch updates (Adam, global-norm clipping). Policy: a
+Gaussian with a state-independent log std; the env clips actions to [-1, 1]. Observation
+normalisation: running mean/std of the robot state and the extras (the heightmap, already in
+[0, 1], is fed raw so that a policy trained on flat ground meets steps without exploding inputs);
+the statistics are updated after each iteration's updates, so the updates see the same inputs
+as the collection did.
+
+Everything that a resume needs is in `TrainState` (parameters, optimiser moments, normaliser);
+the env state is not saved (a resume starts fresh episodes).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from biped_switch import networks
+
+
+class Normalizer(NamedTuple):
+    mean: jax.Array  # (O,)
+    var: jax.Array  # (O,)
+    count: jax.Array  # ()
+
+
+class TrainState(NamedTuple):
+    params: dict  # {"policy": ..., "value": ..., "log_std": (12,)}
+    opt_state: object
+    norm: Normalizer
+
+
+class Trainer(NamedTuple):
+    init: object  # rng -> TrainState
+    reset_envs: object  # (rng, curriculum (3,)) -> env state batch
+    iteration: object  # (TrainState, env state, rng, curriculum (3,)) -> (TrainState, env state, metrics)
+    policy: object  # (params, norm, obs, rng, deterministic) -> action; obs may carry more
+    # columns after the policy observation (a detector one-hot), which it ignores
+    steps_per_iteration: int
+
+
+def norm_mask(env) -> np.ndarray:
+    """1 for the observation entries that are normalised (robot state, extras), 0 for the heightmap."""
+    lay = networks.obs_layout(env)
+    hm = lay["grid"][0] * lay["grid"][1]
+    return np.concatenate([np.ones(lay["state"]), np.zeros(hm), np.ones(lay["extra"])]).astype(np.float32)
+
+
+def normalize(norm: Normalizer, obs, mask, clip=10.0):
+    std = jnp.sqrt(norm.var + 1e-6)
+    z = jnp.clip((obs - norm.mean) / std, -clip, clip)
+    return jnp.where(mask > 0, z, obs)
+
+
+def update_normalizer(norm: Normalizer, batch) -> Normalizer:
+    """Chan et al.'s parallel update of a running mean/variance with a batch (N, O)."""
+    n = batch.shape[0]
+    mean_b = jnp.mean(batch, axis=0)
+    var_b = jnp.var(batch, axis=0)
+    tot = norm.count + n
+    delta = mean_b - norm.mean
+    mean = norm.mean + delta * n / tot
+    m2 = norm.var * norm.count + var_b * n + delta ** 2 * norm.count * n / tot
+    return Normalizer(mean, m2 / tot, tot)
+
+
+def make_networks(net_cfg, env):
+    lay = networks.obs_layout(env)
+    kw = dict(state_size=lay["state"], grid=lay["grid"], encoding=net_cfg.encoding,
+              pool=tuple(net_cfg.pool), hm_hidden=tuple(net_cfg.hm_hidden))
+    pi = networks.PolicyValueMLP(env.action_size, tuple(net_cfg.policy_hidden), **kw)
+    vf = networks.PolicyValueMLP(1, tuple(net_cfg.value_hidden), **kw)
+    return pi, vf
+
+
+def make_policy(net_cfg, env):
+    """(params, norm, obs (B, >= policy obs), rng, deterministic) -> actions (B, 12), unclipped."""
+    pi, _ = make_networks(net_cfg, env)
+    mask = jnp.asarray(norm_mask(env))
+    size = networks.obs_layout(env)["size"]
+
+    def policy(params, norm, obs, rng, deterministic=True):
+        mean = pi.apply(params["policy"], normalize(norm, obs[..., :size], mask))
+        if deterministic:
+            return mean
+        return mean + jnp.exp(params["log_std"]) * jax.random.normal(rng, mean.shape)
+
+    return policy
+
+
+def _gaussian_logp(x, mean, log_std):
+    return jnp.sum(-0.5 * ((x - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi),
+                   axis=-1)
+
+
+def gae(reward, value, value_next, term, trunc, discount, lam):
+    """Advantages (T, ...) by generalised advantage estimation over time-major arrays. A
+    termination cuts the bootstrap; a truncated step (episode cut at its length limit, its next
+    value being that of a fresh episode) has its delta and the recursion through it masked, as
+    Brax does."""
+
+    def body(acc, x):
+        r, v, vn, te, tr = x
+        keep = 1.0 - tr
+        delta = (r + discount * (1.0 - te) * vn - v) * keep
+        acc = delta + discount * lam * (1.0 - te) * keep * acc
+        return acc, acc
+
+    _, adv = jax.lax.scan(body, jnp.zeros_like(reward[0]), (reward, value, value_next, term, trunc),
+                          reverse=True)
+    return adv
+
+
+def make_train(cfg, env) -> Trainer:
+    """The PPO of `cfg.ppo` with the networks of `cfg.network` on `env` (a BipedEnv or any env
+    with reset(rng, difficulty, guide_scale=, push_scale=) and step(state, action))."""
+    p = cfg.ppo
+    n_envs, T = int(p.num_envs), int(p.unroll_length)
+    n_batch = n_envs * T
+    if n_batch % p.num_minibatches:
+        raise ValueError(f"num_envs * unroll_length = {n_batch} does not split into "
+                         f"{p.num_minibatches} minibatches")
+    pi, vf = make_networks(cfg.network, env)
+    mask = jnp.asarray(norm_mask(env))
+    policy = make_policy(cfg.network, env)
+    tx = optax.chain(optax.clip_by_global_norm(p.max_grad_norm),
+                     optax.adam(p.learning_rate, eps=1e-5))
+    obs_size = networks.obs_layout(env)["size"]
+    if obs_size != env.observation_size:
+        raise ValueError(f"the training env's observation ({env.observation_size}) must be the "
+                         f"policy observation ({obs_size}): train without detector_one_hot")
+    ep_len = int(cfg.episode_length)
+
+    def init(rng) -> TrainState:
+        k_pi, k_vf = jax.random.split(rng)
+        dummy = jnp.zeros((1, obs_size))
+        params = {"policy": pi.init(k_pi, dummy), "value": vf.init(k_vf, dummy),
+                  "log_std": jnp.full((env.action_size,), np.log(p.init_action_std), jnp.float32)}
+        norm = Normalizer(jnp.zeros(obs_size), jnp.ones(obs_size), jnp.asarray(1e-4))
+        return TrainState(params, tx.init(params), norm)
+
+    def reset_envs(rng, curr):
+        keys = jax.random.split(rng, n_envs)
+        d, g, push = curr[0], curr[1], curr[2]
+        state = jax.vmap(lambda k: env.reset(k, d, guide_scale=g, push_scale=push))(keys)
+        return state, jnp.zeros(n_envs, jnp.int32), jnp.zeros(n_envs)
+
+    def where_tree(c, a, b):
+        return jax.tree.map(lambda x, y: jnp.where(c.reshape(c.shape + (1,) * (x.ndim - 1)), x, y),
+                            a, b)
+
+    def iteration(ts: TrainState, envs, rng, curr):
+        env_state, ep_t, ep_ret = envs
+        k_fresh, k_roll, k_sgd = jax.random.split(rng, 3)
+        fresh, _, _ = reset_envs(k_fresh, curr)
+
+        def step(carry, key):
+            state, t, ret = carry
+            obs = state.obs
+            mean = pi.apply(ts.params["policy"], normalize(ts.norm, obs, mask))
+            action = mean + jnp.exp(ts.params["log_std"]) * jax.random.normal(key, mean.shape)
+            logp = _gaussian_logp(action, mean, ts.params["log_std"])
+            value = vf.apply(ts.params["value"], normalize(ts.norm, obs, mask))[..., 0]
+            nxt = jax.vmap(env.step)(state, action)
+            t = t + 1
+            term = nxt.done > 0
+            trunc = (t >= ep_len) & ~term
+            end = term | trunc
+            ret = ret + nxt.reward
+            m = nxt.metrics
+            out = {"obs": obs, "action": action, "logp": logp, "value": value,
+                   "reward": nxt.reward, "term": term.astype(jnp.float32),
+                   "trunc": trunc.astype(jnp.float32),
+                   "ep_end": end.astype(jnp.float32), "ep_return": ret, "ep_length": t,
+                   "ep_success": m["success"], "ep_fell": m["fell"],
+                   "ep_distance_m": m["distance_m"], "ep_progress": m["progress_frac"]}
+            state = where_tree(end, fresh, nxt)
+            return (state, jnp.where(end, 0, t), jnp.where(end, 0.0, ret)), out
+
+        (env_state, ep_t, ep_ret), tr = jax.lax.scan(step, (env_state, ep_t, ep_ret),
+                                                    jax.random.split(k_roll, T))
+        last_v = vf.apply(ts.params["value"], normalize(ts.norm, env_state.obs, mask))[..., 0]
+
+        v_next = jnp.concatenate([tr["value"][1:], last_v[None]], axis=0)
+        adv = gae(tr["reward"] * p.reward_scaling, tr["value"], v_next, tr["term"], tr["trunc"],
+                  p.discounting, p.gae_lambda)
+        target = adv + tr["value"]
+        flat = {k: tr[k].reshape((n_batch,) + tr[k].shape[2:])
+                for k in ("obs", "action", "logp", "value")}
+        flat["adv"], flat["target"] = adv.reshape(-1), target.reshape(-1)
+        flat["mask"] = 1.0 - tr["trunc"].reshape(-1)
+
+        def loss_fn(params, mb):
+            obs_n = normalize(ts.norm, mb["obs"], mask)
+            mean = pi.apply(params["policy"], obs_n)
+            logp = _gaussian_logp(mb["action"], mean, params["log_std"])
+            ratio = jnp.exp(logp - mb["logp"])
+            a = mb["adv"]
+            a = (a - jnp.mean(a)) / (jnp.std(a) + 1e-8)
+            surr = jnp.minimum(ratio * a, jnp.clip(ratio, 1 - p.clipping_epsilon,
+                                                   1 + p.clipping_epsilon) * a)
+            w = mb["mask"]
+            pg = -jnp.sum(surr * w) / jnp.maximum(jnp.sum(w), 1.0)
+            v = vf.apply(params["value"], obs_n)[..., 0]
+            v_loss = 0.5 * jnp.mean((v - mb["target"]) ** 2)
+            entropy = jnp.sum(params["log_std"] + 0.5 * jnp.log(2 * jnp.pi * jnp.e))
+            total = pg + p.value_cost * v_loss - p.entropy_cost * entropy
+            return total, {"loss/policy": pg, "loss/value": v_loss, "loss/entropy": entropy,
+                           "loss/approx_kl": jnp.mean((ratio - 1) - jnp.log(ratio)),
+                           "loss/clip_frac": jnp.mean(jnp.abs(ratio - 1) > p.clipping_epsilon)}
+
+        def sgd_epoch(carry, key):
+            params, opt_state = carry
+            perm = jax.random.permutation(key, n_batch)
+            mbs = jax.tree.map(lambda x: x[perm].reshape((p.num_minibatches, -1) + x.shape[1:]),
+                               flat)
+
+            def mb_step(c, mb):
+                params, opt_state = c
+                (_, info), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                upd, opt_state = tx.update(grads, opt_state, params)
+                return (optax.apply_updates(params, upd), opt_state), info
+
+            return jax.lax.scan(mb_step, (params, opt_state), mbs)
+
+        (params, opt_state), info = jax.lax.scan(
+            sgd_epoch, (ts.params, ts.opt_state), jax.random.split(k_sgd, p.num_updates_per_batch))
+        norm = update_normalizer(ts.norm, flat["obs"])
+        ends = tr["ep_end"]
+        n_end = jnp.sum(ends)
+
+        def ep_mean(x):
+            return jnp.sum(x * ends) / jnp.maximum(n_end, 1.0)
+
+        metrics = {k: jnp.mean(v) for k, v in info.items()}
+        metrics.update({
+            "train/reward_per_step": jnp.mean(tr["reward"]),
+            "train/action_std": jnp.mean(jnp.exp(params["log_std"])),
+            "episode/count": n_end,
+            "episode/sum_reward": ep_mean(tr["ep_return"]),
+            "episode/length": ep_mean(tr["ep_length"].astype(jnp.float32)),
+            "episode/success": ep_mean(tr["ep_success"]),
+            "episode/fell": ep_mean(tr["ep_fell"]),
+            "episode/distance_m": ep_mean(tr["ep_distance_m"]),
+            "episode/progress_frac": ep_mean(tr["ep_progress"]),
+        })
+        return TrainState(params, opt_state, norm), (env_state, ep_t, ep_ret), metrics
+
+    return Trainer(init, jax.jit(reset_envs), jax.jit(iteration), policy, n_batch)
