@@ -328,6 +328,11 @@ class BipedEnv(Env):
         inputs = {"action": action, "paused": paused.astype(jnp.float32), "guide": guide,
                   "q_ref": q_ref}
         data = self._physics_step(state.pipeline_state, info, pelvis_wrench, inputs)
+        # A diverged simulation ends its episode as a fall at its last finite state, so that no
+        # NaN reaches the observation, the reward or a learner's statistics.
+        diverged = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel)))
+        data = jax.tree.map(lambda new, old: jnp.where(diverged, old, new), data,
+                            state.pipeline_state)
         contact = self._contacts9(data, info["boxes"])
         info["time_s"] = info["time_s"] + self.dt
         obs, feat = self._observe(data, info, contact, prev=info["contact_prev"])
@@ -335,7 +340,7 @@ class BipedEnv(Env):
         cfg = self.cfg
         fell = ((feat["com_height"] < cfg.fall_height_m) | (jnp.abs(feat["pitch"]) > cfg.fall_tilt_rad)
                 | (jnp.abs(feat["roll"]) > cfg.fall_tilt_rad) | (feat["com"][2] < FALL_Z_M)
-                | ~jnp.all(jnp.isfinite(data.qpos)))
+                | diverged)
         success = (feat["com"][0] >= info["finish_x"]) & ~fell
         reward = self._reward(feat, data.ctrl, fell, paused)
         done = (fell | success).astype(jnp.float32)

@@ -155,8 +155,12 @@ class CPhysics:
             lead = qpos.shape[:-1]
             n = int(np.prod(lead, dtype=int))
             bt, views = self._set_models(n, track_id.reshape(n), difficulty.reshape(n))
-            self._load(views, qpos.reshape(n, -1), qvel.reshape(n, -1), warm.reshape(n, -1),
-                       time.reshape(n) + TIME_OFFSET_S)
+            qpos, qvel = qpos.reshape(n, -1), qvel.reshape(n, -1)
+            bad_in = ~(np.all(np.isfinite(qpos), axis=1) & np.all(np.isfinite(qvel), axis=1))
+            if np.any(bad_in):  # step a harmless state in their place and hand back NaN again
+                qpos, qvel = qpos.copy(), qvel.copy()
+                qpos[bad_in], qvel[bad_in] = b.mj_model.qpos0, 0.0
+            self._load(views, qpos, qvel, warm.reshape(n, -1), time.reshape(n) + TIME_OFFSET_S)
             xfrc = np.zeros((n, b.mj_model.nbody, 6))
             xfrc[:, b.pelvis_body] = xfrc_pelvis.reshape(n, 6)
             views["xfrc_applied"][:] = xfrc
@@ -173,7 +177,7 @@ class CPhysics:
         # A simulation that went unstable (bad qpos/qvel/qacc) was reset by MuJoCo to qpos0 with
         # its clock at 0, which the clock's offset reveals; hand it back as non-finite so the
         # env's termination ends the episode (a fall) instead of teleporting the robot back.
-        lost = out["time"] < 0.5 * TIME_OFFSET_S
+        lost = (out["time"] < 0.5 * TIME_OFFSET_S) | bad_in
         out["time"] = out["time"] - TIME_OFFSET_S
         if np.any(lost):
             for k in ("qpos", "qvel"):

@@ -66,11 +66,17 @@ def normalize(norm: Normalizer, obs, mask, clip=10.0):
     return jnp.where(mask > 0, z, obs)
 
 
-def update_normalizer(norm: Normalizer, batch) -> Normalizer:
-    """Chan et al.'s parallel update of a running mean/variance with a batch (N, O)."""
+def update_normalizer(norm: Normalizer, batch, axis_name=None) -> Normalizer:
+    """Chan et al.'s parallel update of a running mean/variance with a batch (N, O); with
+    `axis_name`, the batch is the union of every device's (inside pmap)."""
     n = batch.shape[0]
     mean_b = jnp.mean(batch, axis=0)
     var_b = jnp.var(batch, axis=0)
+    if axis_name is not None:
+        mean_l = mean_b
+        mean_b = jax.lax.pmean(mean_l, axis_name)
+        var_b = jax.lax.pmean(var_b + (mean_l - mean_b) ** 2, axis_name)
+        n = n * jax.lax.psum(1, axis_name)
     tot = norm.count + n
     delta = mean_b - norm.mean
     mean = norm.mean + delta * n / tot
@@ -129,11 +135,21 @@ def make_train(cfg, env) -> Trainer:
     """The PPO of `cfg.ppo` with the networks of `cfg.network` on `env` (a BipedEnv or any env
     with reset(rng, difficulty, guide_scale=, push_scale=) and step(state, action))."""
     p = cfg.ppo
-    n_envs, T = int(p.num_envs), int(p.unroll_length)
+    n_dev = jax.local_device_count()
+    if p.num_envs % n_dev:
+        raise ValueError(f"num_envs {p.num_envs} does not split over {n_dev} local devices")
+    n_envs, T = int(p.num_envs) // n_dev, int(p.unroll_length)  # per device
     n_batch = n_envs * T
     if n_batch % p.num_minibatches:
-        raise ValueError(f"num_envs * unroll_length = {n_batch} does not split into "
-                         f"{p.num_minibatches} minibatches")
+        raise ValueError(f"num_envs * unroll_length = {n_batch * n_dev} does not split into "
+                         f"{p.num_minibatches} minibatches on each of {n_dev} device(s)")
+    axis = "devices" if n_dev > 1 else None
+
+    def pmean(x):
+        return x if axis is None else jax.lax.pmean(x, axis)
+
+    def psum(x):
+        return x if axis is None else jax.lax.psum(x, axis)
     pi, vf = make_networks(cfg.network, env)
     mask = jnp.asarray(norm_mask(env))
     policy = make_policy(cfg.network, env)
@@ -232,6 +248,7 @@ def make_train(cfg, env) -> Trainer:
             def mb_step(c, mb):
                 params, opt_state = c
                 (_, info), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                grads = pmean(grads)  # one update from every device's minibatch: params stay equal
                 upd, opt_state = tx.update(grads, opt_state, params)
                 return (optax.apply_updates(params, upd), opt_state), info
 
@@ -239,16 +256,16 @@ def make_train(cfg, env) -> Trainer:
 
         (params, opt_state), info = jax.lax.scan(
             sgd_epoch, (ts.params, ts.opt_state), jax.random.split(k_sgd, p.num_updates_per_batch))
-        norm = update_normalizer(ts.norm, flat["obs"])
+        norm = update_normalizer(ts.norm, flat["obs"], axis)
         ends = tr["ep_end"]
-        n_end = jnp.sum(ends)
+        n_end = psum(jnp.sum(ends))
 
         def ep_mean(x):
-            return jnp.sum(x * ends) / jnp.maximum(n_end, 1.0)
+            return psum(jnp.sum(x * ends)) / jnp.maximum(n_end, 1.0)
 
-        metrics = {k: jnp.mean(v) for k, v in info.items()}
+        metrics = {k: pmean(jnp.mean(v)) for k, v in info.items()}
         metrics.update({
-            "train/reward_per_step": jnp.mean(tr["reward"]),
+            "train/reward_per_step": pmean(jnp.mean(tr["reward"])),
             "train/action_std": jnp.mean(jnp.exp(params["log_std"])),
             "episode/count": n_end,
             "episode/sum_reward": ep_mean(tr["ep_return"]),
@@ -260,4 +277,18 @@ def make_train(cfg, env) -> Trainer:
         })
         return TrainState(params, opt_state, norm), (env_state, ep_t, ep_ret), metrics
 
-    return Trainer(init, jax.jit(reset_envs), jax.jit(iteration), policy, n_batch)
+    if axis is None:
+        return Trainer(init, jax.jit(reset_envs), jax.jit(iteration), policy, n_batch)
+    # Every local device runs its share of the envs; the train state is the same on all of them
+    # (gradients and normaliser statistics are averaged), so it leaves pmap unreplicated.
+    reset_p = jax.pmap(reset_envs, in_axes=(0, None))
+    iter_p = jax.pmap(iteration, axis_name=axis, in_axes=(None, 0, 0, None),
+                      out_axes=(None, 0, None))
+
+    def reset_all(rng, curr):
+        return reset_p(jax.random.split(rng, n_dev), curr)
+
+    def iteration_all(ts, envs, rng, curr):
+        return iter_p(ts, envs, jax.random.split(rng, n_dev), curr)
+
+    return Trainer(init, reset_all, iteration_all, policy, n_batch * n_dev)

@@ -1,20 +1,21 @@
-"""Train one behaviour policy with Brax PPO and the guided curriculum, in resumable chunks.
+"""Train one behaviour policy with PPO (ppo.py) and the guided curriculum, resumable.
 
     python -m biped_switch.train --policy gaps --init stand [--preset cpu] [--total-steps N]
 
-Training runs in chunks of `chunk_timesteps` environment steps. Each chunk is one call of
-`brax.training.agents.ppo.train` (all local devices, via its pmap) on an environment whose traced
-curriculum values (difficulty, guide_scale, push_scale) are the current curriculum state, starting
-from the previous chunk's parameters. After a chunk, a fixed-horizon rollout of the deterministic
-policy measures the mean reward per step; `curriculum.update` advances a notch on a milestone.
-Every chunk ends with an Orbax checkpoint of the parameters and a `progress.json` beside it holding
-the step count, the curriculum state and the metrics; a rerun of the same command resumes from
-there. Metrics go to stdout, `metrics.csv` and TensorBoard (`tb/`). The config is saved as
-`config.json`. Not restored on resume: the optimiser's moments (Brax PPO restores parameters only),
-so the first updates after a resume take slightly smaller steps.
+One env and one compiled PPO iteration serve the whole run (the compile is printed once): the
+curriculum's difficulty, guide and push levels enter as traced values. Every `chunk_timesteps`
+env steps a fixed-horizon rollout of the deterministic policy measures the mean reward per step,
+`curriculum.update` advances a notch on a milestone, and an Orbax checkpoint is written of the
+parameters, the optimiser's moments and the observation normaliser, with a `progress.json` (step,
+curriculum, evaluation, wall time, speed) beside it. A rerun of the same command resumes from
+runs/<policy>_<init>/, or, when that is absent (a fresh clone), from the committed copy under
+models/policies/ (`commit_run` writes it: the latest checkpoint, config, metrics, curves).
+Metrics go to stdout, `metrics.csv` and TensorBoard (`tb/`); the config is saved as `config.json`.
 
-Multi-host: call `jax.distributed.initialize()` before training (`--distributed`); Brax PPO then
-splits environments over every process's devices.
+Devices: the envs are split over every local device (pmap; gradients and normaliser statistics
+averaged). Multi-host: `--distributed` calls `jax.distributed.initialize()` first, the collectives
+then span every process's devices, and only process 0 writes checkpoints and logs (not tested
+here: one host).
 """
 
 from __future__ import annotations
@@ -305,7 +306,9 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         warm, prog = restore(pathlib.Path(cfg.warm_start), ts)
         ts = ts._replace(params=warm.params, norm=warm.norm)  # fresh optimiser moments
         print_fn(f"warm start from {cfg.warm_start} (step {prog['step']:,})")
-    (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
+    writer = jax.process_index() == 0  # multi-host: one process writes
+    if writer:
+        (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
     if cfg.policy == "walk" and int(cs.stage) == 0:
         # flat tracks: difficulty scales nothing, so the terrain stage is moot
         cs = cs._replace(difficulty=1.0)
@@ -368,7 +371,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
                          f"d={float(cs.difficulty):.2f} guide={float(cs.guide_scale):.2f} "
                          f"push={float(cs.push_scale):.2f}  {sps:,.0f} steps/s  elapsed "
                          f"{(wall_s + now - t_chunk) / 3600:.2f} h  left ~{left / 3600:.1f} h")
-                logger.log(step, {"train/steps_per_s": sps, **cs._asdict(), **m})
+                if writer:
+                    logger.log(step, {"train/steps_per_s": sps, **cs._asdict(), **m})
         jax.block_until_ready(ts)
         train_s = time.perf_counter() - t_chunk
         t_eval = time.perf_counter()
@@ -382,10 +386,12 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
                     "env_steps_per_s": (step - chunk_start) / train_s, "compile_s": compile_s, "eval": ev,
                     "curriculum_before": cs.as_dict(), "curriculum": new_cs.as_dict(),
                     "backend": env.backend, "device": str(jax.devices()[0]),
-                    "n_devices": 1, "total_steps": int(cfg.total_timesteps)}
-        path = _save(run_dir, step, ts, progress)
-        logger.log(step, {f"eval/{k}": v for k, v in ev.items()} | {"wall_s": wall_s} | {
-            f"curriculum/{k}": v for k, v in new_cs._asdict().items()})
+                    "n_devices": jax.device_count(), "total_steps": int(cfg.total_timesteps)}
+        path = run_dir / "checkpoints" / f"{step:012d}"
+        if writer:
+            _save(run_dir, step, ts, progress)
+            logger.log(step, {f"eval/{k}": v for k, v in ev.items()} | {"wall_s": wall_s} | {
+                f"curriculum/{k}": v for k, v in new_cs._asdict().items()})
         print_fn(f"[{cfg.policy}/{cfg.init}] chunk done at step {step:,}: eval reward/step "
                  f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}, success {ev['success']:.2f}, "
                  f"distance {ev['distance_m']:.2f} m; curriculum {cs.as_dict()['stage_name']} "

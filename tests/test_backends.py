@@ -157,12 +157,20 @@ def test_model_bank_caches_per_track_and_difficulty():
 
 
 def test_an_unstable_simulation_ends_its_episode():
-    """MuJoCo resets a diverged simulation to qpos0; the backend reports it as non-finite, and
-    the env ends the episode as a fall instead of teleporting the robot back to the start."""
+    """MuJoCo resets a diverged simulation to qpos0; the backend reports it as non-finite (also
+    for a non-finite input), and the env ends the episode as a fall at its last finite state
+    instead of teleporting the robot back to the start, with nothing non-finite downstream."""
     env = env_lib.make_env("walk", n_tracks=1, backend="mujoco")
     state = env.reset(jax.random.PRNGKey(0), 1.0, 0)
     ps = state.pipeline_state
-    state = state.replace(pipeline_state=ps.replace(qvel=ps.qvel.at[6].set(1e11)))
+    blown = ps.replace(qvel=ps.qvel.at[6].set(1e11))
+    zeros = {"action": jnp.zeros(12), "paused": jnp.zeros(()), "guide": jnp.zeros(()),
+             "q_ref": jnp.zeros(12)}
+    for bad in (blown, ps.replace(qpos=ps.qpos.at[2].set(jnp.nan))):
+        out = native.step(env._native, 0, 1.0, bad, jnp.zeros(6), zeros)
+        assert not np.all(np.isfinite(np.asarray(out.qpos)))
+    state = state.replace(pipeline_state=blown)
     nxt = jax.jit(env.step)(state, jnp.zeros(12))
-    assert not np.all(np.isfinite(np.asarray(nxt.pipeline_state.qpos)))
     assert float(nxt.done) == 1.0 and float(nxt.metrics["fell"]) == 1.0
+    np.testing.assert_array_equal(nxt.pipeline_state.qpos, blown.qpos)  # the last finite state
+    assert np.all(np.isfinite(np.asarray(nxt.obs))) and np.isfinite(float(nxt.reward))
