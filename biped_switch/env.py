@@ -83,6 +83,7 @@ HOLD_KP_PER_GEAR, HOLD_KD_RATIO = 3.0, 0.05  # standing PD hold: e.g. knee 750 N
 # write them (an env counter named "steps" doubled Brax's and halved every training episode).
 BRAX_WRAPPER_KEYS = frozenset({"steps", "truncation", "first_pipeline_state", "first_obs",
                                "episode_metrics", "episode_done"})
+MAX_QVEL = 200.0  # [m/s, rad/s] beyond any motion of this robot: the simulation has diverged
 FALL_Z_M = -0.2  # CoM below the track surface (z = 0 on flats): fell into a gap or off the side
 CONTACT_DIST_M = 0.0  # a sole touches when the solver has a contact: signed distance < 0 (MJX's
 # sphere-box collider reports dist = 1 for any separated pair, so no positive margin is possible)
@@ -330,7 +331,7 @@ class BipedEnv(Env):
         data = self._physics_step(state.pipeline_state, info, pelvis_wrench, inputs)
         # A diverged simulation ends its episode as a fall at its last finite state, so that no
         # NaN reaches the observation, the reward or a learner's statistics.
-        diverged = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel)))
+        diverged = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.abs(data.qvel) < MAX_QVEL))
         data = jax.tree.map(lambda new, old: jnp.where(diverged, old, new), data,
                             state.pipeline_state)
         contact = self._contacts9(data, info["boxes"])

@@ -36,7 +36,7 @@ def rollout(env, policy: PolicyFn, rng: jax.Array, n_envs: int, horizon: int,
         action = policy(state.obs, key)
         nxt = jax.vmap(env.step)(state, action)
         live = 1.0 - ended
-        total = total + live * nxt.reward
+        total = total + jnp.where(ended > 0, 0.0, nxt.reward)  # never 0 * a frozen episode's
         length = length + live
         metrics = jax.tree.map(lambda new, old: jnp.where(ended > 0, old, new), nxt.metrics, metrics)
         ended = jnp.maximum(ended, nxt.done)
