@@ -9,7 +9,7 @@ import sys
 import textwrap
 
 SCRIPT = textwrap.dedent("""
-    import json, pathlib, sys
+    import json
     import jax, numpy as np
     from biped_switch import ppo, train
     assert jax.local_device_count() == 2, jax.devices()
@@ -25,20 +25,20 @@ SCRIPT = textwrap.dedent("""
     envs = tr.reset_envs(jax.random.PRNGKey(1), jax.numpy.asarray([1.0, 1.0, 0.0]))
     ts2, envs, m = tr.iteration(ts, envs, jax.random.PRNGKey(2), jax.numpy.asarray([1.0, 1.0, 0.0]))
     shard_shape = envs[0].obs.shape
-    prog = train.train(cfg, pathlib.Path(sys.argv[1]), print_fn=lambda *a: None)
     leaves = jax.tree.leaves(ts2.params)
     print(json.dumps({"steps_per_iteration": tr.steps_per_iteration, "shard": list(shard_shape),
                       "param_shape": list(leaves[0].shape), "count": float(ts2.norm.count),
                       "finite": bool(all(np.all(np.isfinite(np.asarray(x))) for x in leaves)),
-                      "step": prog["step"], "n_devices": prog["n_devices"]}))
+                      "changed": bool(any(np.any(np.asarray(a) != np.asarray(b)) for a, b in
+                                          zip(leaves, jax.tree.leaves(ts.params))))}))
 """)
 
 
-def test_training_splits_envs_over_two_devices(tmp_path):
+def test_training_splits_envs_over_two_devices():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
                JAX_PLATFORMS="cpu")
     root = pathlib.Path(__file__).resolve().parent.parent
-    out = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path / "run")], cwd=root, env=env,
+    out = subprocess.run([sys.executable, "-c", SCRIPT], cwd=root, env=env,
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     res = json.loads(out.stdout.strip().splitlines()[-1])
@@ -46,4 +46,4 @@ def test_training_splits_envs_over_two_devices(tmp_path):
     assert res["shard"][:2] == [2, 4]  # (devices, envs per device, obs)
     assert res["param_shape"][0] != 2  # the train state is one copy, not one per device
     assert abs(res["count"] - 64) < 0.01  # both devices' observations (2 x 32), not one's
-    assert res["finite"] and res["step"] == 256 and res["n_devices"] == 2
+    assert res["finite"] and res["changed"]  # one real update of the one copy
