@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: reproduce install demo test test-all bench bench-1art train train-all render-deps wheels clean train-estimators train-dqn
+.PHONY: reproduce install demo test test-all bench bench-train bench-1art train train-all render-deps wheels clean train-estimators train-dqn
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -30,11 +30,15 @@ test-all: $(STAMP)  ## includes tests marked slow
 bench: $(STAMP)
 	$(PY) -m biped_switch.bench --batch 256 --kind mixed --json
 
+bench-train: $(STAMP)  ## PPO env steps/s (collection + updates) and compile time, default backend
+	$(PY) -m biped_switch.bench --train --json
+
 bench-1art: $(STAMP)  ## same, on 1-artifact tracks (cost must not grow with track length)
 	$(PY) -m biped_switch.bench --batch 256 --kind mixed --n-artifacts 1 --json
 
-# Policies (issue 3). TRAIN_ARGS e.g. "--preset cpu --total-steps 2000000" on a CPU machine.
-# Each run resumes from its last checkpoint under runs/<policy>_<init>/.
+# Policies. TRAIN_ARGS e.g. "--total-steps 20000000"; the preset follows the platform (cpu/gpu).
+# Each run resumes from its last checkpoint under runs/<policy>_<init>/, or from the committed
+# models/policies/<policy>_<init>/ on a fresh clone.
 POLICY ?= walk
 INIT   ?= stand
 TRAIN_ARGS ?=

@@ -49,7 +49,7 @@ def default_env_config() -> config_dict.ConfigDict:
         kind="walk",  # terrain kind of the track bank
         backend="auto",  # physics: "mujoco" (C engine, native.py), "mjx", or "auto": mujoco on a
         # CPU, mjx on an accelerator
-        action="pd",  # "torque": joint torques as fractions of the motor limits (the paper);
+        action="torque",  # "torque": joint torques as fractions of the motor limits (the paper);
         # "pd": joint targets (pd_offset) + action * action_scale_rad, tracked by a PD law at every
         # physics substep, torques clipped to the motor limits
         pd_offset="gait",  # "pd": targets are offsets from the scripted gait's joint angles

@@ -63,7 +63,8 @@ def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
         episode_length=1000,  # control steps (20 s)
         log_every=10,  # iterations between progress lines
         warm_start="",  # a checkpoint directory whose parameters start this run (e.g. walk's)
-        env=config_dict.create(backend="auto", action="pd", pd_offset="gait", phase_obs=True),
+        # torque actions: the side-by-side on walk (README, Training) favoured them over pd
+        env=config_dict.create(backend="auto", action="torque", pd_offset="gait", phase_obs=True),
         ppo=config_dict.create(
             num_envs=4096, unroll_length=20, num_minibatches=32, num_updates_per_batch=4,
             learning_rate=3e-4, entropy_cost=1e-3, value_cost=0.5, discounting=0.99,
@@ -426,9 +427,12 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
     import matplotlib.pyplot as plt
 
     rows = list(csv.DictReader((run_dir / "metrics.csv").open()))
+    # rows of a window in which no episode ended carry no episode statistics (runs of before
+    # 2026-12-01 logged zeros there; an ended episode lasts at least one step)
+    ep_rows = [r for r in rows if float(r.get("episode/length") or 0.0) > 0.0]
 
     def series(key):
-        return curve_series(rows, key)
+        return curve_series(ep_rows if key.startswith("episode/") else rows, key)
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
     for key, ax in (("episode/sum_reward", axes[0]), ("episode/length", axes[0].twinx())):
@@ -437,8 +441,14 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
         ax.set_ylabel(key)
     axes[0].set_title("training episodes")
     xy = series("eval/reward_per_step")
-    axes[1].plot(xy[:, 0], xy[:, 1], "o-")
-    axes[1].set_title("milestone rollout: reward per step")
+    axes[1].plot(xy[:, 0], xy[:, 1], "o-", label="reward per step")
+    axes[1].set_ylabel("reward per step")
+    fell_ax = axes[1].twinx()
+    xy = series("eval/fell")
+    fell_ax.plot(xy[:, 0], xy[:, 1], "r.:", label="fell")
+    fell_ax.set_ylabel("fraction fell", color="r")
+    fell_ax.set_ylim(-0.02, 1.02)
+    axes[1].set_title("milestone rollout (5 s, current curriculum)")
     for key in ("difficulty", "guide_scale", "push_scale"):  # logged with every epoch
         xy = series(key)
         axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)
@@ -462,10 +472,12 @@ def main(argv=None) -> int:
     p.add_argument("--backend", default=None, choices=("auto",) + env_lib.BACKENDS,
                    help="physics backend (default: the config's, auto = mujoco on a CPU)")
     p.add_argument("--action", default=None, choices=env_lib.ACTIONS,
-                   help="action mode (default pd: joint targets; torque: the paper's)")
+                   help="action mode (default torque: the paper's; pd: joint targets)")
     p.add_argument("--pd-offset", default=None, choices=("gait", "stand"),
                    help="pd actions: offsets from the scripted gait (default) or the standing pose")
     p.add_argument("--no-phase", action="store_true", help="no gait phase clock in the observation")
+    p.add_argument("--learning-rate", type=float, default=None,
+                   help="PPO's Adam step size (a resume keeps the optimiser's moments)")
     p.add_argument("--warm-start", default=None, metavar="CKPT",
                    help="start a new run from this checkpoint's parameters")
     p.add_argument("--total-steps", type=int, default=None)
@@ -495,6 +507,10 @@ def main(argv=None) -> int:
         cfg.env.pd_offset = a.pd_offset
     if a.warm_start:
         cfg.warm_start = a.warm_start
+    if a.learning_rate is not None:
+        if not a.learning_rate > 0:
+            p.error(f"--learning-rate must be > 0, got {a.learning_rate}")
+        cfg.ppo.learning_rate = a.learning_rate
     if a.total_steps is not None:
         cfg.total_timesteps = a.total_steps
     if a.chunk_steps is not None:

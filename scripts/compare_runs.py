@@ -34,8 +34,9 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
     lines = [f"Budget: {a.steps:,.0f} env steps per run.", "",
-             "| run | guide scale reached | last milestone reward/step | last eval distance [m] "
-             "(5 s) | last eval fell | train steps/s |", "|---|---|---|---|---|---|"]
+             "| run | guide scale reached | push scale reached | last milestone reward/step | "
+             "last eval distance [m] (5 s) | last eval fell | train steps/s |",
+             "|---|---|---|---|---|---|---|"]
     for spec in a.runs:
         label, run = spec.split("=", 1)
         rows = list(csv.DictReader((pathlib.Path(run) / "metrics.csv").open()))
@@ -44,14 +45,16 @@ def main(argv=None) -> int:
             xy = curve_series(rows, key)
             return xy[xy[:, 0] <= a.steps] if len(xy) else xy
 
-        ev, guide = s("eval/reward_per_step"), s("curriculum/guide_scale")
+        ev, guide, push = s("eval/reward_per_step"), s("curriculum/guide_scale"), s("curriculum/push_scale")
         dist, fell, sps = s("eval/distance_m"), s("eval/fell"), s("train/steps_per_s")
         axes[0].plot(ev[:, 0], ev[:, 1], "o-", label=label)
-        axes[1].step(guide[:, 0], guide[:, 1], where="post", label=label)
+        line = axes[1].step(guide[:, 0], guide[:, 1], where="post", label=f"{label}: guide")[0]
+        axes[1].step(push[:, 0], push[:, 1], ":", where="post", color=line.get_color(),
+                     label=f"{label}: push")
         axes[2].plot(dist[:, 0], dist[:, 1], "o-", label=label)
-        lines.append(f"| {label} | {guide[-1, 1]:.1f} | {ev[-1, 1]:.2f} | {dist[-1, 1]:.2f} | "
+        lines.append(f"| {label} | {guide[-1, 1]:.1f} | {push[-1, 1]:.1f} | {ev[-1, 1]:.2f} | {dist[-1, 1]:.2f} | "
                      f"{fell[-1, 1]:.2f} | {np.median(sps[:, 1]):,.0f} |")
-    for ax, title in zip(axes, ("milestone rollout: reward per step", "guide scale after the check",
+    for ax, title in zip(axes, ("milestone rollout: reward per step", "curriculum after the check",
                                 "milestone rollout: distance in 5 s [m]")):
         ax.set_title(title)
         ax.set_xlabel("environment steps")

@@ -89,7 +89,7 @@ def test_chunk_checkpoint_records_progress(trained):
     compiled = [ln for ln in trained["lines"] if "compiled the PPO iteration" in ln]
     assert len(compiled) == 2  # once per run (process), never per chunk
     cfg_json = json.loads((trained["dir"] / "config.json").read_text())
-    assert cfg_json["env"]["action"] == "pd" and cfg_json["network"]["encoding"] == "pool"
+    assert cfg_json["env"]["action"] == "torque" and cfg_json["network"]["encoding"] == "pool"
 
 
 def test_resume_restores_optimiser_normaliser_and_curriculum(trained):
@@ -155,9 +155,9 @@ def test_loaded_policy_acts_like_the_trainer(trained):
     norm = ppo.Normalizer(**{k: jnp.asarray(v) for k, v in tree["norm"].items()})
     ref = np.clip(np.asarray(pol(tree["params"], norm, state.obs, None, True)), -1, 1)
     np.testing.assert_allclose(a, ref, rtol=1e-5, atol=1e-6)
-    torque_env = train_lib.env_lib.make_env("gaps", n_tracks=1, action="torque")
+    pd_env = train_lib.env_lib.make_env("gaps", n_tracks=1, action="pd")
     with pytest.raises(ValueError, match="action"):
-        train_lib.load_policy(ckpt, torque_env)
+        train_lib.load_policy(ckpt, pd_env)
 
 
 def test_unknown_policy_and_preset_are_named():
