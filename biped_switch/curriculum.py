@@ -5,7 +5,8 @@ Three stages, each advanced one notch whenever a milestone of average episode re
   0 terrain   difficulty rises 0 -> 1 while the guide forces help (guide_scale = 1);
   1 guides    at full difficulty, guide_scale anneals 1 -> 0;
   2 pushes    random pushes grow, push_scale 0 -> 1.
-A stage ends when its value reaches its end and one more milestone is met there.
+A stage ends when its value reaches its end and one more milestone is met there; the trainer
+records the end of the last one as `curriculum_done` in progress.json (the state stays at stage 2).
 The state is a small pytree of scalars: it is logged, saved with every checkpoint, restored on
 resume, and enters the environment as traced values, so a stage change never recompiles.
 """

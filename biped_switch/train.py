@@ -293,7 +293,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     env = env_fn(cfg)
     trainer = ppo.make_train(cfg, env)
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
-    step, wall_s, compile_s = 0, 0.0, None
+    step, wall_s, compile_s, done = 0, 0.0, None, False
     cs = curr_lib.CurriculumState(**cfg.start)
     if ckpt is not None:
         ts, prog = restore(ckpt, ts)
@@ -301,6 +301,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
             on_restore(ts)
         step, wall_s = prog["step"], prog["wall_s"]
         cs = curr_lib.CurriculumState.from_dict(prog["curriculum"])
+        done = bool(prog.get("curriculum_done", False))
         logger.drop_after(step)
         print_fn(f"resuming {run_dir} at step {step:,} ({ckpt.name}), curriculum {cs.as_dict()}")
     elif cfg.warm_start:
@@ -381,13 +382,18 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         ev = summarize(evaluate(ts.params, ts.norm, k, curr), cfg.eval.horizon_steps)
         eval_s = time.perf_counter() - t_eval
         new_cs = curr_lib.update(cs, ev["reward_per_step"], ev["progress_frac"], cfg.curriculum)
+        # the last stage ends like the others: its value at its end and one more milestone there
+        done = done or bool(int(cs.stage) == 2 and float(cs.push_scale) >= 1.0 - 1e-6
+                            and curr_lib.milestone(ev["reward_per_step"], ev["progress_frac"],
+                                                   cfg.curriculum))
         new_cs = curr_lib.CurriculumState(*(np.asarray(v).item() for v in new_cs))
         wall_s += train_s + eval_s
         progress = {"step": step, "wall_s": wall_s, "chunk_train_s": train_s, "chunk_eval_s": eval_s,
                     "env_steps_per_s": (step - chunk_start) / train_s, "compile_s": compile_s, "eval": ev,
                     "curriculum_before": cs.as_dict(), "curriculum": new_cs.as_dict(),
                     "backend": env.backend, "device": str(jax.devices()[0]),
-                    "n_devices": jax.device_count(), "total_steps": int(cfg.total_timesteps)}
+                    "n_devices": jax.device_count(), "total_steps": int(cfg.total_timesteps),
+                    "curriculum_done": done}
         path = run_dir / "checkpoints" / f"{step:012d}"
         if writer:
             _save(run_dir, step, ts, progress)

@@ -160,6 +160,21 @@ def test_loaded_policy_acts_like_the_trainer(trained):
         train_lib.load_policy(ckpt, pd_env)
 
 
+def test_the_push_stage_ends_with_a_milestone_at_full_pushes(tmp_path):
+    """curriculum_done: pushes at 1 and one more milestone there; not before."""
+    cfg = _tiny_cfg("walk")
+    cfg.total_timesteps = 256
+    cfg.start.update(stage=2, difficulty=1.0, guide_scale=0.0, push_scale=0.9)
+    cfg.curriculum.reward_milestone = 0.0
+    prog = train_lib.train(cfg, tmp_path / "walk_stand", max_chunks=1, print_fn=lambda *a: None)
+    assert prog["curriculum"]["push_scale"] == pytest.approx(1.0) and not prog["curriculum_done"]
+    prog = train_lib.train(cfg, tmp_path / "walk_stand", print_fn=lambda *a: None)
+    assert prog["curriculum_before"]["push_scale"] == pytest.approx(1.0) and prog["curriculum_done"]
+    from biped_switch import evaluate
+
+    assert not any("unfinished" in n for n in evaluate.run_notes(tmp_path / "walk_stand"))
+
+
 def test_unknown_policy_and_preset_are_named():
     cfg = train_lib.default_train_config("cpu")
     cfg.policy = "hop"
