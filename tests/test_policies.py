@@ -60,23 +60,26 @@ def test_stand_in_is_named(tmp_path):
         pol.suite_env_overrides("stand", tmp_path)
 
 
+PD = {"action": "pd", "pd_offset": "gait", "phase_obs": True}  # not the defaults: differences show
+
+
 def test_load_suite_rejects_policies_with_other_env_overrides(tmp_path):
-    fake_policy_run(tmp_path, "walk")
+    fake_policy_run(tmp_path, "walk", env=PD)
     jumps = fake_policy_run(tmp_path, "jumps", env={"action": "torque", "phase_obs": False})
     names = ("walk", "jumps")
     msg = (rf"{re.escape(str(jumps))} \(jumps\): env overrides .*'action': \('torque', 'pd'\).*"
            rf"'phase_obs': \(False, True\)")
     with pytest.raises(ValueError, match=msg):
         pol.suite_env_overrides("stand", tmp_path, names=names)
-    env = env_lib.make_env("mixed", n_tracks=1, **PD_PHASE)
+    env = env_lib.make_env("mixed", n_tracks=1, **PD)
     with pytest.raises(ValueError, match=msg):
         pol.load_suite("stand", env, tmp_path, names=names)
 
 
 def test_load_suite_rejects_other_networks_and_envs_without_the_overrides(tmp_path):
-    fake_policy_run(tmp_path, "walk")
-    gaps = fake_policy_run(tmp_path, "gaps", network={"policy_hidden": (16,)})
-    env = env_lib.make_env("mixed", n_tracks=1, **PD_PHASE)
+    fake_policy_run(tmp_path, "walk", env=PD)
+    gaps = fake_policy_run(tmp_path, "gaps", network={"policy_hidden": (16,)}, env=PD)
+    env = env_lib.make_env("mixed", n_tracks=1, **PD)
     msg = rf"{re.escape(str(gaps))} \(gaps\): network config .*policy_hidden"
     with pytest.raises(ValueError, match=msg):
         pol.load_suite("stand", env, tmp_path, names=("walk", "gaps"))
