@@ -494,9 +494,15 @@ def main(argv=None) -> int:
     p.add_argument("--name", default=None, help="run folder name (default <policy>_<init>)")
     p.add_argument("--distributed", action="store_true", help="jax.distributed.initialize() first")
     p.add_argument("--plot", metavar="PNG", help="only plot the run's training curves to PNG")
+    p.add_argument("--commit", action="store_true",
+                   help="only copy the run's latest checkpoint, config, metrics and curves to "
+                        "models/policies/<run>/ (then git-commit that folder)")
     a = p.parse_args(argv)
     if a.plot:
-        plot_curves(pathlib.Path(a.out) / f"{a.policy}_{a.init}", pathlib.Path(a.plot))
+        plot_curves(pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}"), pathlib.Path(a.plot))
+        return 0
+    if a.commit:
+        print(f"committed copy: {commit_run(pathlib.Path(a.out) / (a.name or f'{a.policy}_{a.init}'))}")
         return 0
     if a.distributed:
         jax.distributed.initialize()

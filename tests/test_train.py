@@ -65,6 +65,8 @@ def _tiny_cfg(policy="gaps"):
 def trained(tmp_path_factory):
     """Two chunks on the real env, the second one resumed from the first's checkpoint."""
     run_dir = tmp_path_factory.mktemp("run") / "gaps_stand"
+    mp = pytest.MonkeyPatch()  # never resume from a committed models/policies/gaps_stand
+    mp.setattr(train_lib, "COMMITTED_DIR", run_dir.parent / "committed")
     cfg = _tiny_cfg()
     cfg.curriculum.reward_milestone = 0.0  # every chunk advances the curriculum one notch
     lines = []
@@ -75,6 +77,7 @@ def trained(tmp_path_factory):
     resumed = []
     second = train_lib.train(cfg, run_dir, print_fn=lines.append,
                              on_restore=lambda ts: resumed.append(jax.tree.map(np.asarray, ts)))
+    mp.undo()
     return {"dir": run_dir, "cfg": cfg, "first": first, "second": second, "lines": lines,
             "saved1": saved1, "resumed": resumed}
 
@@ -160,8 +163,9 @@ def test_loaded_policy_acts_like_the_trainer(trained):
         train_lib.load_policy(ckpt, pd_env)
 
 
-def test_the_push_stage_ends_with_a_milestone_at_full_pushes(tmp_path):
+def test_the_push_stage_ends_with_a_milestone_at_full_pushes(tmp_path, monkeypatch):
     """curriculum_done: pushes at 1 and one more milestone there; not before."""
+    monkeypatch.setattr(train_lib, "COMMITTED_DIR", tmp_path / "committed")  # not the real walk
     cfg = _tiny_cfg("walk")
     cfg.total_timesteps = 256
     cfg.start.update(stage=2, difficulty=1.0, guide_scale=0.0, push_scale=0.9)
