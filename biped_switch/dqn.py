@@ -573,21 +573,10 @@ def _as_template(tree, template):
                         template)
 
 
-def _save(run_dir: pathlib.Path, step: int, tree: dict, progress: dict) -> pathlib.Path:
-    """Orbax checkpoint <run>/checkpoints/<step>/ of `tree` with progress.json beside it, the
-    layout `train.latest_checkpoint` finds (train._save now takes a PPO TrainState only)."""
-    import orbax.checkpoint as ocp
-
-    path = pathlib.Path(run_dir) / "checkpoints" / f"{step:012d}"
-    ocp.PyTreeCheckpointer().save(path.resolve(), tree, force=True)
-    (path / "progress.json").write_text(json.dumps(progress, indent=2))
-    return path
-
-
 def _restore(path: pathlib.Path) -> dict:
-    import orbax.checkpoint as ocp
+    from biped_switch import train as train_lib
 
-    return ocp.PyTreeCheckpointer().restore(pathlib.Path(path).resolve())
+    return train_lib.load_checkpoint(pathlib.Path(path))[0]
 
 
 def load_dqn(run_dir, in_size: int | None = None):
@@ -758,7 +747,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
         tree = {"online": jax.tree.map(np.asarray, jax.device_get(ts.params)),
                 "target": jax.tree.map(np.asarray, jax.device_get(ts.target)),
                 "opt": _opt_to_dict(jax.device_get(ts.opt_state))}
-        path = _save(run_dir, step, tree, progress)
+        path = train_lib.save_tree(run_dir, step, tree, progress)
         logger.log(step, {"wall_s": wall_s, "chunk_env_steps_per_s": progress["env_steps_per_s"]})
         print_fn(f"[dqn/{cfg.init}] chunk done at step {step:,} ({n_updates:,} updates, "
                  f"{chunk_s:.0f} s); saved {path}")

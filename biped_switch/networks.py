@@ -1,8 +1,8 @@
-"""Policy and value networks for Brax PPO: a heightmap encoder joined with the robot state.
+"""Networks on the observation [robot state (51), heightmap (rows*cols), extras].
 
-The observation is [robot state (51), heightmap (rows*cols), extra (detector one-hot, if any)].
-The heightmap goes through its own MLP encoder (2400 -> 128 -> 64 by default), is joined with the
-state and the extras, and an MLP maps that to the output. Sizes come from the train config.
+`PolicyValueMLP`: the PPO policy and value networks (ppo.py), on the lean pooled heightmap by
+default or through a heightmap MLP encoder. `EncodedMLP`: the heightmap through its own MLP
+encoder, joined with the state and the extras (the DQN selector's Q-network).
 """
 
 from __future__ import annotations
@@ -11,8 +11,6 @@ from typing import Sequence
 
 import jax
 import jax.numpy as jnp
-from brax.training import distribution, networks, types
-from brax.training.agents.ppo.networks import PPONetworks
 from flax import linen
 
 from biped_switch.env import STATE_SIZE
@@ -37,40 +35,6 @@ class EncodedMLP(linen.Module):
         for n in self.hidden:
             x = linen.swish(linen.Dense(n, kernel_init=init)(x))
         return linen.Dense(self.out_size, kernel_init=init)(x)
-
-
-def _network(module: linen.Module, obs_size: int, preprocess) -> networks.FeedForwardNetwork:
-    def init(key):
-        return module.init(key, jnp.zeros((1, obs_size)))
-
-    def apply(processor_params, params, obs):
-        return module.apply(params, preprocess(obs, processor_params))
-
-    return networks.FeedForwardNetwork(init=init, apply=apply)
-
-
-def make_networks_factory(net_cfg, hm_size: int):
-    """A Brax `network_factory` for ppo.train, with sizes from `net_cfg`."""
-
-    def factory(observation_size: int, action_size: int,
-                preprocess_observations_fn: types.PreprocessObservationFn = types
-                .identity_observation_preprocessor) -> PPONetworks:
-        if isinstance(observation_size, tuple) and len(observation_size) == 1:
-            observation_size = observation_size[0]  # Brax passes the shape of a flat observation
-        if not isinstance(observation_size, int):
-            raise TypeError(f"expected a flat observation, got shape {observation_size!r}")
-        dist = distribution.NormalTanhDistribution(event_size=action_size)
-        policy = EncodedMLP(dist.param_size, tuple(net_cfg.policy_hidden), tuple(net_cfg.hm_hidden),
-                            hm_size)
-        value = EncodedMLP(1, tuple(net_cfg.value_hidden), tuple(net_cfg.hm_hidden), hm_size)
-        value_net = _network(value, observation_size, preprocess_observations_fn)
-        value_apply = value_net.apply
-        value_net = networks.FeedForwardNetwork(
-            init=value_net.init, apply=lambda p, v, o: jnp.squeeze(value_apply(p, v, o), axis=-1))
-        return PPONetworks(policy_network=_network(policy, observation_size, preprocess_observations_fn),
-                           value_network=value_net, parametric_action_distribution=dist)
-
-    return factory
 
 
 # ----------------------------------------------------------------------------- the project's PPO

@@ -110,15 +110,6 @@ def suite_env_overrides(init: str, runs: str | pathlib.Path = "runs", stand_in: 
     return _suite_configs(find_suite(init, runs, stand_in, names))[1]
 
 
-class _PolicyObsEnv(NamedTuple):
-    """What the policy networks read of an env, with the observation cut to the policy columns
-    (an env with the DQN's detector one-hot has 3 more, which the policies never saw)."""
-
-    cfg: object
-    observation_size: int
-    action_size: int
-
-
 def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
                stand_in: str | None = None, names: tuple = POLICY_NAMES) -> PolicySuite:
     """The four policies of an init mode (latest checkpoints under runs/ or models/policies/), or
@@ -153,10 +144,6 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
             src = f"stand-in for {n}: {src}"
             print(f"WARNING: no {init}-init {n} policy; using {stand_in} in its place", file=sys.stderr)
         sources.append(src)
-    n_obs = env.policy_observation_size
-    inner = train_lib.policy_apply(run_cfg, _PolicyObsEnv(env.cfg, n_obs, env.action_size))
-
-    def apply(p, obs):
-        return inner(p, obs[..., :n_obs])
-
-    return PolicySuite(apply, stack(params), tuple(sources), dict(overrides))
+    # the policy network reads only the first env.policy_observation_size columns (ppo.make_policy)
+    return PolicySuite(train_lib.policy_apply(run_cfg, env), stack(params), tuple(sources),
+                       dict(overrides))

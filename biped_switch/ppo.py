@@ -37,6 +37,11 @@ class Normalizer(NamedTuple):
     var: jax.Array  # (O,)
     count: jax.Array  # ()
 
+    @classmethod
+    def from_tree(cls, tree: dict) -> "Normalizer":
+        """From a checkpoint's {"mean", "var", "count"}."""
+        return cls(**{k: jnp.asarray(tree[k]) for k in cls._fields})
+
 
 class TrainState(NamedTuple):
     params: dict  # {"policy": ..., "value": ..., "log_std": (12,)}

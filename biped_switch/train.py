@@ -117,21 +117,28 @@ def policy_env_overrides(ckpt: pathlib.Path) -> dict:
     return env
 
 
-def _save(run_dir: pathlib.Path, step: int, state, progress: dict, keep: int = 2) -> pathlib.Path:
-    """Orbax checkpoint <run>/checkpoints/<step>/ (parameters, optimiser state, normaliser) with
-    progress.json beside it; older checkpoints beyond the last `keep` are removed."""
+def save_tree(run_dir: pathlib.Path, step: int, tree, progress: dict,
+              keep: int | None = None) -> pathlib.Path:
+    """Orbax checkpoint <run>/checkpoints/<step>/ of `tree` with progress.json beside it (the
+    layout `latest_checkpoint` finds; PPO and DQN runs alike); with `keep`, older checkpoints
+    beyond the last `keep` are removed."""
     import shutil
 
     import orbax.checkpoint as ocp
 
-    path = run_dir / "checkpoints" / f"{step:012d}"
-    tree = {"params": state.params, "opt_state": state.opt_state, "norm": state.norm._asdict()}
+    path = pathlib.Path(run_dir) / "checkpoints" / f"{step:012d}"
     ocp.PyTreeCheckpointer().save(path.resolve(), tree, force=True)
     (path / "progress.json").write_text(json.dumps(progress, indent=2))
-    ckpts = sorted(p for p in (run_dir / "checkpoints").glob("[0-9]" * 12))
-    for old in ckpts[:-keep]:
-        shutil.rmtree(old, ignore_errors=True)
+    if keep is not None:
+        for old in sorted(path.parent.glob("[0-9]" * 12))[:-keep]:
+            shutil.rmtree(old, ignore_errors=True)
     return path
+
+
+def _save(run_dir: pathlib.Path, step: int, state, progress: dict, keep: int = 2) -> pathlib.Path:
+    """A PPO checkpoint: parameters, optimiser state, normaliser; the last `keep` are kept."""
+    tree = {"params": state.params, "opt_state": state.opt_state, "norm": state.norm._asdict()}
+    return save_tree(run_dir, step, tree, progress, keep)
 
 
 def latest_checkpoint(run_dir: pathlib.Path) -> pathlib.Path | None:
@@ -158,19 +165,18 @@ def restore(ckpt: pathlib.Path, template: "ppo.TrainState"):
     """(TrainState, progress) of a checkpoint: parameters, optimiser moments and normaliser, in
     the structure of `template` (a fresh `Trainer.init` of the same config)."""
     tree, prog = load_checkpoint(ckpt, template)
-    norm = ppo.Normalizer(**{k: jnp.asarray(v) for k, v in tree["norm"].items()})
-    return ppo.TrainState(tree["params"], tree["opt_state"], norm), prog
+    return ppo.TrainState(tree["params"], tree["opt_state"], ppo.Normalizer.from_tree(tree["norm"])), prog
 
 
-def policy_apply(cfg, env):
-    """The deterministic policy of a run config as a pure function (params, obs (B, O)) -> (B, 12),
-    params = {"params": ..., "norm": ...} as `load_checkpoint` gives them."""
+def policy_apply(cfg, env, deterministic: bool = True):
+    """The policy of a run config as a pure function (params, obs (B, >= policy obs), rng) ->
+    actions (B, 12) in [-1, 1], params = {"params": ..., "norm": ...} as `load_checkpoint` gives
+    them; `deterministic`: the Gaussian's mean (rng unused), else a sample."""
     pol = ppo.make_policy(cfg.network, env)
 
-    def apply(params, obs):
-        n = params["norm"]
-        norm = ppo.Normalizer(jnp.asarray(n["mean"]), jnp.asarray(n["var"]), jnp.asarray(n["count"]))
-        return jnp.clip(pol(params["params"], norm, obs, None, True), -1.0, 1.0)
+    def apply(params, obs, rng=None):
+        norm = ppo.Normalizer.from_tree(params["norm"])
+        return jnp.clip(pol(params["params"], norm, obs, rng, deterministic), -1.0, 1.0)
 
     return apply
 
@@ -185,14 +191,9 @@ def load_policy(ckpt: pathlib.Path, env, deterministic: bool = True):
     if wrong:
         raise ValueError(f"{ckpt}: the env's {wrong} (env, policy) differ from what the policy "
                          f"was trained with; make the env with train.policy_env_overrides")
-    apply = policy_apply(cfg, env)
-    pol = ppo.make_policy(cfg.network, env)
+    apply = policy_apply(cfg, env, deterministic)
     params = {"params": tree["params"], "norm": tree["norm"]}
-    if deterministic:
-        return (lambda obs, key: apply(params, obs)), progress
-    n = tree["norm"]
-    norm = ppo.Normalizer(jnp.asarray(n["mean"]), jnp.asarray(n["var"]), jnp.asarray(n["count"]))
-    return (lambda obs, key: jnp.clip(pol(tree["params"], norm, obs, key, False), -1, 1)), progress
+    return (lambda obs, key: apply(params, obs, key)), progress
 
 
 class Logger:
