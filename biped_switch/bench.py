@@ -36,9 +36,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_switch import env as env_lib
+from biped_switch import estimator as est
+from biped_switch import ppo
 from biped_switch import terrain
-from biped_switch.config import default_terrain_config
+from biped_switch.config import default_estimator_config, default_terrain_config, default_train_config
 from biped_switch.heightmap import heightmap
+from biped_switch.train import train_env
 
 
 def _time(fn, *args, reps: int) -> float:
@@ -112,12 +115,9 @@ def run(batch: int = 256, kind: str = "mixed", steps: int = 20, seed: int = 0,
 def run_train(backend: str = "auto", kind: str = "walk", iterations: int = 5, preset: str = "cpu",
               encoding: str = "pool", seed: int = 0) -> dict:
     """PPO env steps/s (collection + updates) on `backend`, after one compile."""
-    from biped_switch import ppo
-    from biped_switch import train as train_lib
-
-    cfg = train_lib.default_train_config(preset)
+    cfg = default_train_config(preset)
     cfg.policy, cfg.env.backend, cfg.network.encoding = kind, backend, encoding
-    env = train_lib.make_env(cfg)
+    env = train_env(cfg)
     trainer = ppo.make_train(cfg, env)
     curr = jnp.asarray([1.0, 1.0, 0.0], jnp.float32)  # difficulty 1, guides on, no pushes
     ts = trainer.init(jax.random.PRNGKey(seed))
@@ -148,9 +148,6 @@ def run_train(backend: str = "auto", kind: str = "walk", iterations: int = 5, pr
 
 def run_estimator(points: int, epochs: int, seed: int = 0) -> dict:
     """Estimator training speed on `points` random (state, heightmap, label) rows."""
-    from biped_switch import estimator as est
-    from biped_switch.config import default_estimator_config
-
     rng = np.random.default_rng(seed)
     data = {"state": rng.normal(size=(points, est.STATE_SIZE)).astype(np.float32),
             "heightmap": rng.uniform(size=(points, est.HM_SIZE)).astype(np.float16),
@@ -180,7 +177,7 @@ def main(argv=None) -> int:
     p.add_argument("--json", action="store_true", help="print only the JSON object")
     p.add_argument("--estimator", action="store_true", help="time switch-estimator training instead")
     p.add_argument("--train", action="store_true", help="time PPO training (collection + updates)")
-    p.add_argument("--backend", default="auto", choices=("auto",) + env_lib.BACKENDS)
+    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES)
     p.add_argument("--encoding", default="pool", choices=("pool", "mlp"),
                    help="--train: the policy's heightmap input (pool: 150 values; mlp: 2,400)")
     p.add_argument("--iterations", type=int, default=5, help="--train: timed PPO iterations")

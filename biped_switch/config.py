@@ -2,15 +2,26 @@
 
 Keys that fix array shapes (box capacity, grid, batch) are kept in `shape` sub-dicts, apart from
 values that may be traced and vmapped (difficulty, reward weights, thresholds).
+
+The seed ranges of the tracks each stage runs on are named here too, so that no stage trains,
+sweeps or evaluates on another's tracks: track i of a stage has seed <stage>_TRACK_SEED + i.
 """
 
 from __future__ import annotations
 
 from ml_collections import config_dict
 
+# Track seeds. Training (PPO, and the DQN selector) uses tracks TRAIN_TRACK_SEED + run seed + i,
+# i in 0..n_tracks-1 (a run's `seed`, default 0, shifts them); the other stages start far above.
+TRAIN_TRACK_SEED = 0
+EVAL_TRACK_SEED = 10_000  # Table I (`evaluate single`) and the render CLI: never trained on
+SWEEP_TRACK_SEED = 20_000  # switch-point sweeps (single-artifact tracks)
+MULTI_TRACK_SEED = 30_000  # Table II (`evaluate multi`), Fig. 5 and the demo: mixed tracks
 
-def default_terrain_config() -> config_dict.ConfigDict:
-    """Artifact sizes of the paper (Sec. IV), at difficulty 1."""
+
+def default_terrain_config(n_artifacts: int = 7) -> config_dict.ConfigDict:
+    """Artifact sizes of the paper (Sec. IV), at difficulty 1; `n_artifacts` per track (paper: 7;
+    the sweeps use 1, the demo 2)."""
     return config_dict.create(
         stair_rise_m=0.17,
         step_height_m=0.30,  # `jumps`: a block 0.3 m high ...
@@ -22,7 +33,7 @@ def default_terrain_config() -> config_dict.ConfigDict:
         width_max_m=1.7,
         segments_min=4,  # boxes (or holes) per artifact, 4..9
         segments_max=9,
-        n_artifacts=7,
+        n_artifacts=int(n_artifacts),
         flat_before_m=0.9,  # at least this much flat before every artifact
         start_back_m=1.0,  # track starts this far behind the robot (x = 0)
         runup_m=1.0,  # flat ahead of the robot before the first artifact's lead-in
@@ -125,6 +136,7 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         reward_milestone=0.7,  # advance when mean episode reward per step >= this fraction ...
         reward_per_step_max=5.4,  # ... of the best possible (3*0.8 + 1 + 1 + 0.5 + 0.5)
         min_progress=0.0,  # and mean progress_frac >= this (0 disables)
+        max_fell=0.25,  # and at most this fraction of evaluation episodes fell (1 disables)
         difficulty_step=0.1,
         guide_step=0.1,
         push_step=0.1,
@@ -132,6 +144,89 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         push_duration_s=0.2,
         push_interval_s=2.0,  # mean time between pushes
     )
+
+
+def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
+    """A behaviour policy's training run (train.py): PPO (ppo.py), network and schedule; `preset`
+    "cpu" sizes the batch for a 2-core machine. A run's config.json is this, saved (`runs.run_config`
+    reads it back over today's defaults).
+
+    `env` holds env-config overrides the policy is trained (and so must be evaluated) with: the
+    action mode, the phase clock and the physics backend ("auto": mujoco on a CPU)."""
+    cfg = config_dict.create(
+        policy="walk",
+        init="stand",
+        seed=0,
+        total_timesteps=100_000_000,
+        chunk_timesteps=5_000_000,  # env steps between curriculum checks and checkpoints
+        n_tracks=256,
+        episode_length=1000,  # control steps (20 s)
+        log_every=10,  # iterations between progress lines
+        warm_start="",  # a checkpoint directory whose parameters start this run (e.g. walk's)
+        # torque actions: the side-by-side on walk (README, Training) favoured them over pd
+        env=config_dict.create(backend="auto", action="torque", pd_offset="gait", phase_obs=True),
+        ppo=config_dict.create(
+            num_envs=4096, unroll_length=20, num_minibatches=32, num_updates_per_batch=4,
+            learning_rate=3e-4, entropy_cost=1e-3, value_cost=0.5, discounting=0.99,
+            gae_lambda=0.95, clipping_epsilon=0.2, reward_scaling=0.1, max_grad_norm=1.0,
+            init_action_std=0.5,
+        ),
+        network=config_dict.create(policy_hidden=(256, 256), value_hidden=(256, 256),
+                                   encoding="pool", pool=(2, 8), hm_hidden=(128, 64)),
+        eval=config_dict.create(n_envs=256, horizon_steps=500),
+        curriculum=default_curriculum_config(),
+        start=config_dict.create(stage=0, difficulty=0.0, guide_scale=1.0, push_scale=0.0),
+    )
+    if preset == "cpu":
+        cfg.chunk_timesteps = 1_000_000
+        cfg.total_timesteps = 100_000_000
+        cfg.n_tracks = 32
+        cfg.ppo.update(num_envs=256, unroll_length=32, num_minibatches=4)
+        cfg.eval.update(n_envs=64, horizon_steps=250)
+    elif preset != "gpu":
+        raise ValueError(f"unknown preset {preset!r}; expected 'gpu' or 'cpu'")
+    return cfg
+
+
+def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
+    """The DQN selector baseline (dqn.py); `preset` "cpu" is a tiny run for a 2-core machine
+    (pipeline checks only)."""
+    cfg = config_dict.create(
+        init="stand",
+        seed=0,
+        n_tracks=256,  # training tracks: mixed, seeds TRAIN_TRACK_SEED + seed + 0..n_tracks-1
+        difficulty=1.0,
+        num_envs=512,
+        total_env_steps=20_000_000,
+        chunk_env_steps=1_000_000,  # checkpoint period
+        log_every=100,  # collection iterations per jitted call (one progress line)
+        max_episode_s=60.0,  # time-out (bootstrapped), as evaluate multi's horizon
+        reset_pool=0,  # episode starts drawn from this many reset states (0: one per bank track)
+        replay_capacity=500_000,  # transitions (about 10 kB each)
+        batch_size=512,
+        learning_starts=200_000,  # transitions in the buffer before the first update
+        updates_per_collect=2,  # gradient updates per iteration (num_envs transitions)
+        learning_rate=3e-4,
+        max_grad_norm=10.0,
+        gamma=0.99,  # 50 Hz decisions: a 2 s horizon
+        huber_delta=1.0,
+        reward_scale=0.1,  # applied to env reward + bonus (Q-values of order 50)
+        target_update_period=1000,  # gradient updates between target syncs
+        tau=1.0,  # 1: hard copy; < 1: target <- tau online + (1 - tau) target
+        epsilon=config_dict.create(start=1.0, end=0.05, decay_steps=5_000_000),  # env steps
+        oracle_bonus=1.0,  # per step, for choosing the detected artifact's policy (walk if none)
+        norm_std_floor=1e-2,
+        network=config_dict.create(hm_hidden=(128, 64), hidden=(256, 256)),  # as the policies
+    )
+    if preset == "cpu":
+        cfg.update(n_tracks=16, num_envs=8, total_env_steps=20_000, chunk_env_steps=4_000,
+                   log_every=50, replay_capacity=20_000, batch_size=64, learning_starts=1_000,
+                   updates_per_collect=1, target_update_period=200)
+        cfg.epsilon.decay_steps = 10_000
+        cfg.network.update(hm_hidden=(32,), hidden=(64, 64))
+    elif preset != "gpu":
+        raise ValueError(f"unknown preset {preset!r}; expected 'gpu' or 'cpu'")
+    return cfg
 
 
 def default_sweep_config() -> config_dict.ConfigDict:

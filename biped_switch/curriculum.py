@@ -39,17 +39,21 @@ class CurriculumState(NamedTuple):
                    float(d["push_scale"]))
 
 
-def milestone(reward_per_step, progress_frac, cfg=None):
-    """True when the mean episode reward per step (and progress, if asked) meets the milestone."""
+def milestone(reward_per_step, progress_frac, cfg=None, fell_frac=0.0):
+    """True when the mean reward per step, the progress (if asked) and the fall rate meet the
+    milestone. The fall cap matters on artifact tracks: the 5 s evaluation meets about one
+    artifact, so a policy that walks well and then falls into the gap still scores a high reward
+    per step (gaps reached difficulty 1 with 70% of evaluation episodes falling, session 6)."""
     cfg = cfg or default_curriculum_config()
     ok = reward_per_step >= cfg.reward_milestone * cfg.reward_per_step_max
-    return ok & (progress_frac >= cfg.min_progress)
+    return ok & (progress_frac >= cfg.min_progress) & (fell_frac <= cfg.max_fell)
 
 
-def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None) -> CurriculumState:
+def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None,
+           fell_frac=0.0) -> CurriculumState:
     """Advances one notch of the current stage when the milestone is met; pure and jittable."""
     cfg = cfg or default_curriculum_config()
-    hit = milestone(reward_per_step, progress_frac, cfg)
+    hit = milestone(reward_per_step, progress_frac, cfg, fell_frac)
     stage = jnp.asarray(cs.stage)
     in_terrain, in_guides, in_pushes = stage == 0, stage == 1, stage == 2
     at_full = cs.difficulty >= 1.0 - 1e-6

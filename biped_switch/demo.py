@@ -26,10 +26,14 @@ import numpy as np
 
 from biped_switch import render
 
-render._gl_default()  # the GL backend is fixed when mujoco is first imported: before evaluate's
+render._gl_default()  # the GL backend is fixed when mujoco is first imported: before env's
 
-from biped_switch import evaluate  # noqa: E402
+from biped_switch import env as env_lib  # noqa: E402
+from biped_switch import fig5  # noqa: E402
 from biped_switch import policies as pol  # noqa: E402
+from biped_switch import runs as runs_lib  # noqa: E402
+from biped_switch import table2  # noqa: E402
+from biped_switch.config import MULTI_TRACK_SEED, default_env_config  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -52,8 +56,8 @@ def main(argv=None) -> int:
                    help="policy used for any that is not trained (flagged in the output)")
     p.add_argument("--guide-scale", type=float, default=None,
                    help="scripted guide forces (default: on only when a policy is a stand-in)")
-    p.add_argument("--backend", default="auto", choices=evaluate.BACKEND_CHOICES,
-                   help=evaluate.BACKEND_HELP)
+    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
+                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     p.add_argument("--no-video", action="store_true")
     p.add_argument("--out", default="experiments/results/demo")
     a = p.parse_args(argv)
@@ -72,8 +76,8 @@ def main(argv=None) -> int:
         a.estimators = str(pathlib.Path(a.pipeline_check) / "estimators")
         a.lookup = "experiments/results/pipeline_check/lookup"
         print(f"demo: using the pipeline-check suite in {a.pipeline_check}/")
-    methods, skipped = evaluate.available_methods(evaluate.MULTI_METHODS, a.runs, a.estimators,
-                                                  a.lookup, a.dqn, stand_in=a.stand_in)
+    methods, skipped = table2.available_methods(table2.MULTI_METHODS, a.runs, a.estimators,
+                                                a.lookup, a.dqn, stand_in=a.stand_in)
     if not methods:
         print("demo: nothing to run: " + "; ".join(skipped), file=sys.stderr)
         return 1
@@ -89,11 +93,11 @@ def main(argv=None) -> int:
         print(f"  PIPELINE CHECK, NOT A RESULT: {', '.join(stand_ins) or 'no'} policies are stand-ins "
               f"for untrained ones ({a.stand_in} acts in their place); scripted guide forces at "
               f"{guide:g}. Train the policies (make train-all) for real numbers.", flush=True)
-    rows, setups = evaluate.evaluate_multi(
+    rows, setups = table2.evaluate_multi(
         methods, a.trials, a.trials, a.horizon_s, a.seed, a.runs, a.stand_in, a.estimators,
         a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=guide, dqn_dir=a.dqn,
         n_artifacts=a.n_artifacts, backend=a.backend)
-    md = evaluate.table2_markdown(rows)
+    md = table2.table2_markdown(rows)
     if stand_ins or guide > 0:
         md = (f"PIPELINE CHECK, NOT A RESULT: stand-ins for {', '.join(stand_ins) or 'none'} "
               f"({a.stand_in} acts in their place), guide forces {guide:g}; {a.trials} trials of "
@@ -108,11 +112,11 @@ def main(argv=None) -> int:
                "backend": sorted({r["backend"] for r in rows})}
     setup = setups.get("stand")
     if setup is not None and setup.est_apply is not None:
-        rec = evaluate.trace_trial(setup, "estimator", 0, a.seed)
-        track = evaluate.trial_track(setup, 0)
+        rec = fig5.trace_trial(setup, "estimator", 0, a.seed)
+        track = table2.trial_track(setup, 0)
         title = "demo: estimator switching, trial 0" + (" (PIPELINE CHECK: stand-in policies)"
                                                         if stand_ins else "")
-        evaluate.plot_trial(rec, track, out / "fig5_demo.png", title)
+        fig5.plot_trial(rec, track, out / "fig5_demo.png", title)
         summary["fig5"] = str(out / "fig5_demo.png")
         print(f"wrote {out / 'fig5_demo.png'}")
         if not a.no_video:
@@ -127,9 +131,7 @@ def main(argv=None) -> int:
 def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
     """Time limit [s] that lets a robot walking at the target speed finish the longest of the
     demo's tracks with `margin` to spare (after the 0.5 s standing pause)."""
-    from biped_switch.config import default_env_config
-
-    finish_m = max(evaluate.mixed_track(evaluate.MULTI_TRACK_SEED + i, n_artifacts).finish_x_m
+    finish_m = max(table2.mixed_track(MULTI_TRACK_SEED + i, n_artifacts).finish_x_m
                    for i in range(trials))
     ecfg = default_env_config()
     return float(np.ceil(ecfg.pause_s + margin * finish_m / ecfg.target_speed_mps))
@@ -137,7 +139,7 @@ def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
 
 def _untrained(runs) -> list:
     """Stand-init behaviour policies with no checkpoint under `runs`/ or models/policies/."""
-    return [n for n in pol.POLICY_NAMES if evaluate.find_policy(n, "stand", pathlib.Path(runs)) is None]
+    return [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, "stand", pathlib.Path(runs)) is None]
 
 
 def _video(rec: dict, setup, path: pathlib.Path) -> str | None:

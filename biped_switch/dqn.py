@@ -77,7 +77,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import math
 import pathlib
 import sys
@@ -91,53 +90,19 @@ import numpy as np
 import optax
 from ml_collections import config_dict
 
+from biped_switch import env as env_lib
 from biped_switch import policies as pol
+from biped_switch import rollout as rollout_lib
+from biped_switch import runs as runs_lib
+from biped_switch.config import default_dqn_config
 from biped_switch.env import STATE_SIZE
+from biped_switch.networks import EncodedMLP
+from biped_switch.terrain import ARTIFACT_KINDS
 
-N_KINDS = 3  # artifact kinds the detector names (jumps, gaps, stairs)
+N_KINDS = len(ARTIFACT_KINDS)  # artifact kinds the detector names (jumps, gaps, stairs)
 N_ACTIONS = len(pol.POLICY_NAMES)  # 4 policies: walk, jumps, gaps, stairs
 NORM_CLIP = 10.0
 NORM_ROWS = 16_384  # rows (strided over the warm-up transitions) the input statistics come from
-
-
-def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
-    """Hyperparameters; `preset` "cpu" is a tiny run for a 2-core machine (pipeline checks only)."""
-    cfg = config_dict.create(
-        init="stand",
-        seed=0,
-        n_tracks=256,  # training tracks: mixed, seeds seed .. seed + n_tracks - 1
-        difficulty=1.0,
-        num_envs=512,
-        total_env_steps=20_000_000,
-        chunk_env_steps=1_000_000,  # checkpoint period
-        log_every=100,  # collection iterations per jitted call (one progress line)
-        max_episode_s=60.0,  # time-out (bootstrapped), as evaluate multi's horizon
-        reset_pool=0,  # episode starts drawn from this many reset states (0: one per bank track)
-        replay_capacity=500_000,  # transitions (about 10 kB each)
-        batch_size=512,
-        learning_starts=200_000,  # transitions in the buffer before the first update
-        updates_per_collect=2,  # gradient updates per iteration (num_envs transitions)
-        learning_rate=3e-4,
-        max_grad_norm=10.0,
-        gamma=0.99,  # 50 Hz decisions: a 2 s horizon
-        huber_delta=1.0,
-        reward_scale=0.1,  # applied to env reward + bonus (Q-values of order 50)
-        target_update_period=1000,  # gradient updates between target syncs
-        tau=1.0,  # 1: hard copy; < 1: target <- tau online + (1 - tau) target
-        epsilon=config_dict.create(start=1.0, end=0.05, decay_steps=5_000_000),  # env steps
-        oracle_bonus=1.0,  # per step, for choosing the detected artifact's policy (walk if none)
-        norm_std_floor=1e-2,
-        network=config_dict.create(hm_hidden=(128, 64), hidden=(256, 256)),  # as the policies
-    )
-    if preset == "cpu":
-        cfg.update(n_tracks=16, num_envs=8, total_env_steps=20_000, chunk_env_steps=4_000,
-                   log_every=50, replay_capacity=20_000, batch_size=64, learning_starts=1_000,
-                   updates_per_collect=1, target_update_period=200)
-        cfg.epsilon.decay_steps = 10_000
-        cfg.network.update(hm_hidden=(32,), hidden=(64, 64))
-    elif preset != "gpu":
-        raise ValueError(f"unknown preset {preset!r}; expected 'gpu' or 'cpu'")
-    return cfg
 
 
 # ----------------------------------------------------------------------- pure pieces
@@ -255,7 +220,6 @@ def make_q(net_cfg, hm_size: int, n_actions: int = N_ACTIONS):
 
     The network is the policies' EncodedMLP (heightmap encoder `hm_hidden`, joined with the state
     and the one-hot, MLP `hidden`, swish) behind a frozen input normaliser `params["norm"]`."""
-    from biped_switch.networks import EncodedMLP
 
     module = EncodedMLP(out_size=n_actions, hidden=tuple(net_cfg.hidden),
                         hm_hidden=tuple(net_cfg.hm_hidden), hm_size=hm_size)
@@ -574,24 +538,20 @@ def _as_template(tree, template):
 
 
 def _restore(path: pathlib.Path) -> dict:
-    from biped_switch import train as train_lib
-
-    return train_lib.load_checkpoint(pathlib.Path(path))[0]
+    return runs_lib.load_checkpoint(pathlib.Path(path))[0]
 
 
 def load_dqn(run_dir, in_size: int | None = None):
     """(q_apply, q_params) of the latest checkpoint of a DQN run (online net, with its normaliser).
     `in_size`: the Q-input size of the env it will run on (`q_input_size(env)`), checked against
     the checkpoint's (a selector trained without the phase clock cannot read one with it)."""
-    from biped_switch import train as train_lib
-
     run_dir = pathlib.Path(run_dir)
-    ckpt = train_lib.latest_checkpoint(run_dir)
+    ckpt = runs_lib.latest_checkpoint(run_dir)
     if ckpt is None:
         raise FileNotFoundError(f"no DQN checkpoint under {run_dir}/checkpoints "
                                 f"(train with `python -m biped_switch.dqn`)")
-    cfg = config_dict.ConfigDict(json.loads((run_dir / "config.json").read_text()))
-    prog = json.loads((ckpt / "progress.json").read_text())
+    cfg = config_dict.ConfigDict(runs_lib.read_config(run_dir))
+    prog = runs_lib.read_progress(ckpt)
     saved_in = prog.get("q_input_size")
     if in_size is not None and saved_in is not None and int(saved_in) != int(in_size):
         raise ValueError(f"{ckpt}: the DQN selector reads {saved_in} input columns, the env gives "
@@ -608,49 +568,36 @@ def dqn_rollout(env, suite_apply, suite_params, q_apply, q_params, rng: jax.Arra
                 horizon: int, track_ids=None, chunk: int = 50, guide_scale=0.0) -> dict:
     """Episodes on the env's tracks with the greedy Q choice of policy at every step.
 
-    Same protocol and keys as `switching.multi_rollout` (episodes frozen at their end, chunks of
-    `chunk` steps under a while loop that stops once all have ended): every final env metric,
-    `length` (live steps), `done` and `n_switches` (changes of the chosen policy, counted from
-    walk, as multi_rollout's episodes start with walk active). The same rng gives the same start
-    states as multi_rollout; `guide_scale` > 0 turns the scripted guides on (pipeline checks)."""
+    Same protocol and keys as `switching.multi_rollout` (`rollout.run_episodes`: episodes frozen
+    at their end, chunks of `chunk` steps under a while loop that stops once all have ended):
+    every final env metric, `length` (live steps), `done` and `n_switches` (changes of the chosen
+    policy, counted from walk, as multi_rollout's episodes start with walk active). The same rng
+    gives the same start states as multi_rollout; `guide_scale` > 0 turns the scripted guides on
+    (pipeline checks)."""
     p = policy_obs_size(env)
     k_reset, k_run = jax.random.split(rng)
-    keys = jax.random.split(k_reset, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
-    state = jax.vmap(lambda k, i: env.reset(k, track_id=i, guide_scale=guide_scale))(keys, track_ids)
-    zi = jnp.zeros(n_envs, jnp.int32)
-    carry = (state, zi, zi, jnp.zeros(n_envs), jnp.zeros(n_envs), state.metrics,
-             jnp.zeros((), jnp.int32))
+    state = rollout_lib.reset_by_track(env, jax.random.split(k_reset, n_envs), track_ids,
+                                       guide_scale=guide_scale)
 
-    def step(c, _):
-        state, prev, n_sw, length, ended, metrics, t = c
+    def act(c, state, live, _):
+        prev, n_sw = c
         obs = q_input(state.obs, state.metrics["detected_kind"], p)
         choice = jnp.argmax(q_apply(q_params, obs), axis=-1).astype(jnp.int32)
         action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs[:, :p]), choice)
-        nxt = jax.vmap(env.step)(state, action)
-        live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
         n_sw = n_sw + (live & (choice != prev)).astype(jnp.int32)
-        prev = jnp.where(live, choice, prev)
-        state = nxt  # ended episodes step on unread, as in multi_rollout: no per-step state mask
-        metrics = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt.metrics, metrics)
-        length = length + live
-        ended = jnp.maximum(ended, nxt.done * live)
-        return (state, prev, n_sw, length, ended, metrics, t + 1), None
+        return action, (jnp.where(live, choice, prev), n_sw), None
 
-    def not_finished(c):
-        return (c[6] < horizon) & jnp.any(c[4] < 0.5)
-
-    _, _, n_sw, length, ended, metrics, _ = jax.lax.while_loop(
-        not_finished, lambda c: jax.lax.scan(step, c, None, length=chunk)[0], carry)
-    return {**metrics, "length": length, "done": ended, "n_switches": n_sw}
+    zi = jnp.zeros(n_envs, jnp.int32)
+    ep = rollout_lib.run_episodes(env, state, horizon, act, (zi, zi), chunk=chunk)
+    return {**ep.metrics, "length": ep.length, "done": ep.done, "n_switches": ep.carry[1]}
 
 
 # ----------------------------------------------------------------------- training driver
 def make_dqn_env(cfg, backend: str = "auto", **overrides):
     """The DQN's training env: `mixed` tracks with the detector one-hot, on the physics `backend`;
     `overrides` are the policy suite's env overrides (`policies.suite_env_overrides`)."""
-    from biped_switch import env as env_lib
 
     return env_lib.make_env("mixed", cfg.init, detector_one_hot=True, n_tracks=cfg.n_tracks,
                             seed=cfg.seed, difficulty=cfg.difficulty, backend=backend, **overrides)
@@ -665,7 +612,6 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
     `env` (default: `make_dqn_env` on `backend` with the suite's env overrides), `suite` (default:
     the `cfg.init` policies under `runs`, missing ones replaced by `stand_in`) and `pool` (the
     episode starts; default: `reset_pool` of one state per bank track) may be passed in (tests)."""
-    from biped_switch import train as train_lib
 
     t_session = time.perf_counter()
     run_dir = pathlib.Path(run_dir)
@@ -678,8 +624,8 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
     if suite is None:
         suite = pol.load_suite(cfg.init, env, runs, stand_in=stand_in)
     fns = make_train_fns(cfg, env, suite.apply)
-    logger = train_lib.Logger(run_dir)
-    ckpt = train_lib.latest_checkpoint(run_dir)
+    logger = runs_lib.Logger(run_dir)
+    ckpt = runs_lib.latest_checkpoint(run_dir)
     step, wall_s, n_updates, norm_ready, setup_total = 0, 0.0, 0, False, 0.0
     own_pool = pool is None
     if own_pool:
@@ -687,7 +633,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
     ts = fns.init(jax.random.PRNGKey(cfg.seed), pool)
     if ckpt is not None:
         saved = _restore(ckpt)
-        prog = json.loads((ckpt / "progress.json").read_text())
+        prog = runs_lib.read_progress(ckpt)
         step, wall_s = int(prog["step"]), float(prog["wall_s"])
         n_updates, norm_ready = int(prog["n_updates"]), bool(prog["norm_ready"])
         setup_total = prog.get("setup_s_total")  # None: an older checkpoint, the sum is unknown
@@ -747,7 +693,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
         tree = {"online": jax.tree.map(np.asarray, jax.device_get(ts.params)),
                 "target": jax.tree.map(np.asarray, jax.device_get(ts.target)),
                 "opt": _opt_to_dict(jax.device_get(ts.opt_state))}
-        path = train_lib.save_tree(run_dir, step, tree, progress)
+        path = runs_lib.save_tree(run_dir, step, tree, progress)
         logger.log(step, {"wall_s": wall_s, "chunk_env_steps_per_s": progress["env_steps_per_s"]})
         print_fn(f"[dqn/{cfg.init}] chunk done at step {step:,} ({n_updates:,} updates, "
                  f"{chunk_s:.0f} s); saved {path}")
@@ -756,7 +702,6 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
 
 
 def main(argv=None) -> int:
-    from biped_switch import env as env_lib
 
     p = argparse.ArgumentParser(prog="python -m biped_switch.dqn", description=__doc__.split("\n")[0])
     p.add_argument("--preset", default="gpu", choices=("gpu", "cpu"))
@@ -771,7 +716,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="run directory (default RUNS/dqn_<init>)")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
-    p.add_argument("--backend", default="auto", choices=("auto",) + env_lib.BACKENDS,
+    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     a = p.parse_args(argv)
     cfg = default_dqn_config(a.preset)

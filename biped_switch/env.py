@@ -77,12 +77,15 @@ STATE_SLICES = {
 }
 INITS = ("stand", "random")
 BACKENDS = ("mujoco", "mjx")
+BACKEND_CHOICES = ("auto",) + BACKENDS  # what every CLI's --backend accepts
+BACKEND_HELP = "physics backend (auto: mujoco on a CPU, mjx on an accelerator)"
 ACTIONS = ("torque", "pd")
 HOLD_KP_PER_GEAR, HOLD_KD_RATIO = 3.0, 0.05  # standing PD hold: e.g. knee 750 Nm/rad, 37.5 Nm s/rad
 # info keys that Brax's training wrappers (EpisodeWrapper, AutoResetWrapper) own: the env must not
 # write them (an env counter named "steps" doubled Brax's and halved every training episode).
 BRAX_WRAPPER_KEYS = frozenset({"steps", "truncation", "first_pipeline_state", "first_obs",
                                "episode_metrics", "episode_done"})
+REWARD_TERMS = ("progress", "speed", "alive", "upright", "height", "lateral", "torque", "fall")
 MAX_QVEL = 200.0  # [m/s, rad/s] beyond any motion of this robot: the simulation has diverged
 FALL_Z_M = -0.2  # CoM below the track surface (z = 0 on flats): fell into a gap or off the side
 CONTACT_DIST_M = 0.0  # a sole touches when the solver has a contact: signed distance < 0 (MJX's
@@ -294,8 +297,9 @@ class BipedEnv(Env):
             "time_s": jnp.zeros((), jnp.float32),
         }
         obs, feat = self._observe(data, info, contact)
-        metrics = self._metrics(feat, info, fell=jnp.zeros(()), success=jnp.zeros(()))
         zero = jnp.zeros((), jnp.float32)
+        metrics = self._metrics(feat, info, fell=zero, success=zero,
+                                terms={k: zero for k in REWARD_TERMS})
         return State(pipeline_state=data, obs=obs, reward=zero, done=zero, metrics=metrics, info=info)
 
     def step(self, state: State, action: jax.Array) -> State:
@@ -308,7 +312,6 @@ class BipedEnv(Env):
 
     def _step(self, state: State, action: jax.Array, hold) -> State:
         info = dict(state.info)
-        b = self.biped
         action = jnp.clip(action, -1.0, 1.0)
         paused = (info["time_s"] < self._pause_s) | hold
         walk_t = info["time_s"] - self._pause_s
@@ -343,10 +346,10 @@ class BipedEnv(Env):
                 | (jnp.abs(feat["roll"]) > cfg.fall_tilt_rad) | (feat["com"][2] < FALL_Z_M)
                 | diverged)
         success = (feat["com"][0] >= info["finish_x"]) & ~fell
-        reward = self._reward(feat, data.ctrl, fell, paused)
+        reward, terms = self._reward(feat, data.ctrl, fell, paused)
         done = (fell | success).astype(jnp.float32)
         metrics = self._metrics(feat, info, fell=fell.astype(jnp.float32),
-                                success=success.astype(jnp.float32))
+                                success=success.astype(jnp.float32), terms=terms)
         return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done,
                              metrics=metrics, info=info)
 
@@ -452,21 +455,28 @@ class BipedEnv(Env):
         return {"index": jnp.where(valid, nxt, -1), "kind": jnp.where(seen, info["art_kind"][nxt], -1),
                 "dist_m": jnp.where(valid, dist, jnp.inf)}
 
-    def _reward(self, feat, ctrl, fell, paused):
+    def _reward_terms(self, feat, ctrl, fell, paused) -> dict:
+        """Each weighted reward term (signed, so they sum to the reward), logged as reward/<term>."""
         w = self.cfg.reward
         target = jnp.where(paused, 0.0, self.cfg.target_speed_mps)
         vx = feat["lin_vel"][0]
-        r = (w.progress * jnp.minimum(vx, target)
-             + w.speed * jnp.exp(-((vx - target) ** 2) / 0.1)
-             + w.alive
-             + w.upright * jnp.cos(feat["pitch"]) * jnp.cos(feat["roll"])
-             + w.height * jnp.exp(-((feat["com_height"] - self._h_stand) ** 2) / 0.01)
-             - w.lateral * (jnp.abs(feat["com"][1]) + jnp.abs(feat["yaw"]))
-             - w.torque * jnp.mean(jnp.where(paused, 0.0, ctrl) ** 2)  # policy's torques only
-             - w.fall * fell)
-        return r.astype(jnp.float32)
+        terms = {
+            "progress": w.progress * jnp.minimum(vx, target),
+            "speed": w.speed * jnp.exp(-((vx - target) ** 2) / 0.1),
+            "alive": w.alive * jnp.ones_like(vx),
+            "upright": w.upright * jnp.cos(feat["pitch"]) * jnp.cos(feat["roll"]),
+            "height": w.height * jnp.exp(-((feat["com_height"] - self._h_stand) ** 2) / 0.01),
+            "lateral": -w.lateral * (jnp.abs(feat["com"][1]) + jnp.abs(feat["yaw"])),
+            "torque": -w.torque * jnp.mean(jnp.where(paused, 0.0, ctrl) ** 2),  # policy's only
+            "fall": -w.fall * jnp.asarray(fell, jnp.float32),
+        }
+        return {k: v.astype(jnp.float32) for k, v in terms.items()}
 
-    def _metrics(self, feat, info, fell, success):
+    def _reward(self, feat, ctrl, fell, paused):
+        terms = self._reward_terms(feat, ctrl, fell, paused)
+        return sum(terms.values()).astype(jnp.float32), terms
+
+    def _metrics(self, feat, info, fell, success, terms):
         x = feat["com"][0]
         span = jnp.maximum(info["finish_x"] - info["start_x"], 1e-6)
         passed = jnp.sum((info["art_x1"] < x) & (info["art_kind"] >= 0))
@@ -480,7 +490,7 @@ class BipedEnv(Env):
             "fell": jnp.asarray(fell, jnp.float32),
             "fail_kind": jnp.where(fell > 0, blamed, -1).astype(jnp.float32),
             "detected_kind": feat["detect"]["kind"].astype(jnp.float32),
-        }
+        } | {f"reward/{k}": v for k, v in terms.items()}
 
 
 def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: float):
@@ -497,8 +507,13 @@ def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: floa
 
 
 def make_env(kind: str = "walk", init: str = "stand", curriculum_cfg=None, terrain_cfg=None,
-             **overrides) -> BipedEnv:
-    """A BipedEnv on `kind` tracks with env-config overrides (e.g. n_tracks=8, difficulty=0.5)."""
+             n_artifacts: int | None = None, **overrides) -> BipedEnv:
+    """The one env factory: a BipedEnv on `kind` tracks with env-config overrides (e.g.
+    n_tracks=8, difficulty=0.5); `n_artifacts` per track (default: the terrain config's, 7)."""
+    if n_artifacts is not None:
+        if terrain_cfg is not None:
+            raise ValueError("give n_artifacts or terrain_cfg, not both")
+        terrain_cfg = default_terrain_config(n_artifacts)
     cfg = default_env_config()
     cfg.kind, cfg.init = kind, init
     for k, v in overrides.items():

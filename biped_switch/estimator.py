@@ -42,14 +42,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import orbax.checkpoint as ocp
 from flax import linen
+from flax.training import orbax_utils
 
 from biped_switch.config import default_env_config, default_estimator_config
+from biped_switch.env import STATE_SIZE
+from biped_switch.terrain import ARTIFACT_KINDS
 
-STATE_SIZE = 51  # == biped_switch.env.STATE_SIZE (not imported: env pulls in MuJoCo; a test checks)
 HM_SIZE = default_env_config().shape.grid_forward * default_env_config().shape.grid_lateral  # 2400
 IN_SIZE = STATE_SIZE + HM_SIZE  # 2451: the leading columns of the observation that predict reads
-TARGETS = ("jumps", "gaps", "stairs")
+TARGETS = ARTIFACT_KINDS  # one estimator per artifact kind: jumps, gaps, stairs
 STD_FLOOR = 1e-2  # input columns with a smaller std (e.g. constant heightmap cells) are scaled by this
 EVAL_CHUNK = 4096  # validation points per forward pass
 
@@ -328,9 +331,6 @@ def _jsonable(x):
 
 def save_estimator(path, params: dict, meta: dict) -> pathlib.Path:
     """Orbax checkpoint of `params` (as numpy arrays) at `path`, with `meta` as meta.json inside."""
-    import orbax.checkpoint as ocp
-    from flax.training import orbax_utils
-
     path = pathlib.Path(path).resolve()
     params = jax.tree.map(np.asarray, jax.device_get(params))
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -342,8 +342,6 @@ def save_estimator(path, params: dict, meta: dict) -> pathlib.Path:
 
 def load_estimator(path) -> tuple[dict, dict]:
     """(params as numpy arrays, meta dict) of a checkpoint written by `save_estimator`."""
-    import orbax.checkpoint as ocp
-
     path = pathlib.Path(path).resolve()
     if not (path / "meta.json").exists():
         raise FileNotFoundError(f"no estimator at {path} (expected an Orbax checkpoint with meta.json); "
@@ -373,6 +371,7 @@ def load_estimator_set(init: str, model_dir="models/estimators", targets: Sequen
 
 def plot_history(history: dict, out_png, title: str = "") -> None:
     """Loss (train, val) and validation accuracy per epoch."""
+    # lazy: matplotlib loads slowly and only this plot needs it; the backend is chosen before pyplot
     import matplotlib
 
     matplotlib.use("Agg")

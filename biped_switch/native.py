@@ -24,6 +24,7 @@ contacts the solver used as sole-sphere vs box penetration of the last substep's
 
 from __future__ import annotations
 
+import os
 import threading
 from typing import Callable
 
@@ -36,7 +37,17 @@ from flax import struct
 from biped_switch import model as model_lib
 from biped_switch import terrain
 
-NTHREAD = 2  # threads of each mujoco.batch.Batch (this machine has 2 cores)
+def _nthread() -> int:
+    """Threads of each mujoco.batch.Batch: all cores, or BIPED_SWITCH_NTHREAD when several runs share them."""
+    raw = os.environ.get("BIPED_SWITCH_NTHREAD", "")
+    if not raw:
+        return max(1, os.cpu_count() or 1)
+    if not raw.isdigit() or int(raw) < 1:
+        raise ValueError(f"BIPED_SWITCH_NTHREAD={raw!r}: expected a positive integer")
+    return int(raw)
+
+
+NTHREAD = _nthread()
 DIFFICULTY_DECIMALS = 4  # models are cached per difficulty rounded to this many decimals
 TIME_OFFSET_S = 1e3  # the C clock runs this far ahead during a step, so a reset (clock 0) shows
 

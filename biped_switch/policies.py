@@ -1,4 +1,5 @@
-"""The behaviour-policy suite as one stacked pytree, so a switching controller is one jitted function.
+"""Behaviour policies from their checkpoints: one as a function (`load_policy`), or a suite as one
+stacked pytree, so a switching controller is one jitted function.
 
 Every policy of a suite has the same network config and the same env overrides (action mode,
 phase clock: `suite_env_overrides`, to build the suite's env with), so one env serves them all
@@ -11,7 +12,6 @@ switching rules traced arrays: the stand-init and random-init suites share one c
 
 from __future__ import annotations
 
-import json
 import pathlib
 import sys
 from typing import Callable, NamedTuple
@@ -19,6 +19,8 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from biped_switch import ppo
+from biped_switch import runs as runs_lib
 from biped_switch import terrain
 
 POLICY_NAMES = ("walk",) + terrain.ARTIFACT_KINDS  # ("walk", "jumps", "gaps", "stairs")
@@ -48,18 +50,44 @@ def stack(params_list: list) -> object:
     return jax.tree.map(lambda *xs: jnp.stack(xs), *params_list)
 
 
+def policy_apply(cfg, env, deterministic: bool = True):
+    """The policy of a run config as a pure function (params, obs (B, >= policy obs), rng) ->
+    actions (B, 12) in [-1, 1], params = {"params": ..., "norm": ...} as `runs.load_checkpoint`
+    gives them; `deterministic`: the Gaussian's mean (rng unused), else a sample."""
+    pol = ppo.make_policy(cfg.network, env)
+
+    def apply(params, obs, rng=None):
+        norm = ppo.Normalizer.from_tree(params["norm"])
+        return jnp.clip(pol(params["params"], norm, obs, rng, deterministic), -1.0, 1.0)
+
+    return apply
+
+
+def load_policy(ckpt: pathlib.Path, env, deterministic: bool = True):
+    """(batched policy (obs, rng) -> action, progress dict) of a checkpoint, with its run's network.
+    `env` must have been made with `runs.policy_env_overrides(ckpt)`."""
+    tree, progress = runs_lib.load_checkpoint(ckpt)
+    cfg = runs_lib.run_config(ckpt.parent.parent)
+    need = runs_lib.env_overrides(cfg)
+    wrong = {k: (env.cfg[k], v) for k, v in need.items() if env.cfg[k] != v}
+    if wrong:
+        raise ValueError(f"{ckpt}: the env's {wrong} (env, policy) differ from what the policy "
+                         f"was trained with; make the env with runs.policy_env_overrides")
+    apply = policy_apply(cfg, env, deterministic)
+    params = {"params": tree["params"], "norm": tree["norm"]}
+    return (lambda obs, key: apply(params, obs, key)), progress
+
+
 def find_suite(init: str, runs: str | pathlib.Path = "runs", stand_in: str | None = None,
                names: tuple = POLICY_NAMES) -> dict:
     """{name: checkpoint} of a suite, each name's latest checkpoint under runs/ or
     models/policies/, or the stand-in's where it has none (see `load_suite`)."""
-    from biped_switch import evaluate
-
     runs = pathlib.Path(runs)
-    found = {n: evaluate.find_policy(n, init, runs) for n in names}
+    found = {n: runs_lib.find_policy(n, init, runs) for n in names}
     missing = [n for n, c in found.items() if c is None]
     if not missing:
         return found
-    alt = evaluate.find_policy(stand_in, init, runs) if stand_in is not None else None
+    alt = runs_lib.find_policy(stand_in, init, runs) if stand_in is not None else None
     if alt is None:
         raise FileNotFoundError(
             f"no trained {init}-init policy for {', '.join(missing)} under {runs}/ or "
@@ -72,19 +100,17 @@ def _suite_configs(ckpts: dict) -> tuple:
     """(run config, env overrides) shared by the checkpoints of a suite; a policy whose network or
     env overrides (action mode, phase clock) differ from the first one's is an error: the suite
     runs on one env and stacks its parameters."""
-    from biped_switch import train as train_lib
-
     first, run_cfg, overrides = None, None, None
     for name, ckpt in ckpts.items():
-        saved = json.loads((ckpt.parent.parent / "config.json").read_text())
+        saved = runs_lib.read_config(ckpt.parent.parent)
         policy, init = saved.get("policy", name), saved.get("init", "stand")
         if "env" not in saved:  # run_config would fill in today's defaults, not what it ran with
             raise ValueError(f"{ckpt} ({name}): its config.json has no env section, so the action "
                              f"mode and phase clock it was trained with are unknown (a Brax PPO run "
                              f"from before biped_switch.ppo?); retrain it (`python -m "
                              f"biped_switch.train --policy {policy} --init {init}`)")
-        cfg = train_lib.run_config(ckpt.parent.parent)
-        ov = train_lib.policy_env_overrides(ckpt)
+        cfg = runs_lib.run_config(ckpt.parent.parent)
+        ov = runs_lib.env_overrides(cfg)
         if first is None:
             first, run_cfg, overrides = (name, ckpt), cfg, ov
             continue
@@ -121,8 +147,6 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
     names a policy to use in its place; that is for exercising the pipeline before every policy
     is trained, and the substitution is recorded in `sources` (and so in every result's metadata)
     and printed."""
-    from biped_switch import train as train_lib
-
     found = find_suite(init, runs, stand_in, names)
     run_cfg, overrides = _suite_configs(found)
     wrong = {k: (env.cfg[k], v) for k, v in overrides.items() if env.cfg[k] != v}
@@ -133,7 +157,7 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
     params, sources = [], []
     for n in names:
         ckpt = found[n]
-        tree, prog = train_lib.load_checkpoint(ckpt)
+        tree, prog = runs_lib.load_checkpoint(ckpt)
         if not (isinstance(tree, dict) and {"params", "norm"} <= set(tree)):
             raise ValueError(f"{ckpt}: not a checkpoint of biped_switch.train (a "
                              f"{type(tree).__name__} without params/norm: Brax's format?)")
@@ -145,5 +169,5 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
             print(f"WARNING: no {init}-init {n} policy; using {stand_in} in its place", file=sys.stderr)
         sources.append(src)
     # the policy network reads only the first env.policy_observation_size columns (ppo.make_policy)
-    return PolicySuite(train_lib.policy_apply(run_cfg, env), stack(params), tuple(sources),
+    return PolicySuite(policy_apply(run_cfg, env), stack(params), tuple(sources),
                        dict(overrides))

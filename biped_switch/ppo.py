@@ -208,7 +208,8 @@ def make_train(cfg, env) -> Trainer:
                    "trunc": trunc.astype(jnp.float32),
                    "ep_end": end.astype(jnp.float32), "ep_return": ret, "ep_length": t,
                    "ep_success": m["success"], "ep_fell": m["fell"],
-                   "ep_distance_m": m["distance_m"], "ep_progress": m["progress_frac"]}
+                   "ep_distance_m": m["distance_m"], "ep_progress": m["progress_frac"],
+                   "terms": {k: v for k, v in m.items() if k.startswith("reward/")}}
             state = where_tree(end, fresh, nxt)
             return (state, jnp.where(end, 0, t), jnp.where(end, 0.0, ret)), out
 
@@ -280,6 +281,7 @@ def make_train(cfg, env) -> Trainer:
             "episode/distance_m": ep_mean(tr["ep_distance_m"]),
             "episode/progress_frac": ep_mean(tr["ep_progress"]),
         })
+        metrics.update({k: pmean(jnp.mean(v)) for k, v in tr["terms"].items()})  # per step
         return TrainState(params, opt_state, norm), (env_state, ep_t, ep_ret), metrics
 
     if axis is None:

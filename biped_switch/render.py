@@ -8,6 +8,10 @@ trained with); its joint trajectory is then replayed on a CPU MuJoCo model compi
 episode's boxes and drawn by a camera that follows the pelvis. Needs an OpenGL backend: EGL on a
 GPU host, OSMesa on a CPU host (`MUJOCO_GL=osmesa`, Debian's libosmesa6; `make render-deps`
 installs it). A `.mp4` output needs imageio-ffmpeg; `.gif` needs only Pillow.
+
+MuJoCo fixes its OpenGL backend when it is first imported, so nothing that loads mujoco (model,
+env, runs, policies) is imported at this module's top: those imports sit inside the functions,
+after `_gl_default()` (the demo imports this module first for the same reason).
 """
 
 from __future__ import annotations
@@ -17,7 +21,11 @@ import os
 import pathlib
 import sys
 
+import jax
 import numpy as np
+
+from biped_switch import terrain
+from biped_switch.config import EVAL_TRACK_SEED
 
 
 def _gl_default() -> None:
@@ -29,8 +37,6 @@ def _gl_default() -> None:
 
 def record(env, act, seconds: float, seed: int = 0, track_id: int = 0):
     """(qpos per control step (T, nq), boxes (C, 6), metrics) of one episode; `act` None = scripted."""
-    import jax
-
     reset = jax.jit(lambda k: env.reset(k, track_id=track_id))
     step = jax.jit(env.hold_step if act is None else
                    (lambda s, k: env.step(s, act(s.obs[None], k)[0])))
@@ -49,8 +55,6 @@ def track_boxes(boxes: np.ndarray) -> np.ndarray:
     """The rows of an env's box slots that hold terrain. Padding rows are parked at x = 1e6 or far
     below; left in, they set the model's extent, hence the near clipping plane, to kilometres and
     every frame renders as empty sky."""
-    from biped_switch import terrain
-
     boxes = np.asarray(boxes)
     keep = (np.abs(boxes[:, 0]) < 0.5 * terrain.FAR_X_M) & (boxes[:, 2] > terrain.PARK_Z_M + 1.0)
     return boxes[keep]
@@ -60,7 +64,7 @@ def frames(qpos: np.ndarray, boxes: np.ndarray, width: int = 480, height: int = 
            every: int = 2) -> list[np.ndarray]:
     """RGB frames of a qpos trajectory on a CPU model holding `boxes`, side-on tracking camera.
     Call `_gl_default()` (or set MUJOCO_GL) before mujoco is first imported."""
-    import mujoco
+    import mujoco  # lazy: after _gl_default (module docstring)
 
     from biped_switch.model import compile_mj_model
 
@@ -86,11 +90,11 @@ def frames(qpos: np.ndarray, boxes: np.ndarray, width: int = 480, height: int = 
 def write(images: list[np.ndarray], path: pathlib.Path, fps: float) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".mp4":
-        import imageio.v2 as imageio  # needs imageio-ffmpeg
+        import imageio.v2 as imageio  # lazy: optional, and needs imageio-ffmpeg
 
         imageio.mimwrite(path, images, fps=fps)
         return
-    from PIL import Image
+    from PIL import Image  # lazy: only a GIF needs it
 
     pics = [Image.fromarray(im) for im in images]
     pics[0].save(path, save_all=True, append_images=pics[1:], duration=int(1000 / fps), loop=0)
@@ -112,22 +116,21 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if not a.scripted and a.policy is None:
         p.error("give --policy NAME or --scripted")
-    _gl_default()  # before anything imports mujoco
-    import jax
-
+    _gl_default()  # before anything imports mujoco: then env, runs and policies may be imported
     from biped_switch import env as env_lib
-    from biped_switch import evaluate, train as train_lib
+    from biped_switch import runs as runs_lib
+    from biped_switch.policies import load_policy
 
     kind = a.kind or a.policy or "mixed"
     ckpt, overrides = None, {}
     if not a.scripted:
-        ckpt = evaluate.find_policy(a.policy, a.init, pathlib.Path(a.runs))
+        ckpt = runs_lib.find_policy(a.policy, a.init, pathlib.Path(a.runs))
         if ckpt is None:
             p.error(f"no trained {a.policy}/{a.init} policy under {a.runs}/ or models/policies/")
-        overrides = train_lib.policy_env_overrides(ckpt)
-    env = env_lib.make_env(kind, a.init, n_tracks=1, seed=evaluate.EVAL_TRACK_SEED + a.seed,
+        overrides = runs_lib.policy_env_overrides(ckpt)
+    env = env_lib.make_env(kind, a.init, n_tracks=1, seed=EVAL_TRACK_SEED + a.seed,
                            backend=a.backend, **overrides)
-    act = None if ckpt is None else train_lib.load_policy(ckpt, env)[0]
+    act = None if ckpt is None else load_policy(ckpt, env)[0]
     qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
     fps = 1.0 / (2 * env.dt)
     out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")

@@ -1,52 +1,137 @@
-"""Batched fixed-horizon rollouts of a policy, with each episode frozen once it ends.
+"""Batched episodes, each frozen once it ends: the one episode loop every rollout is built on.
 
-One pure function serves the curriculum's milestone checks during training and the evaluations:
-`rollout(env, policy, rng, n_envs, horizon)` runs `n_envs` episodes for `horizon` control steps
-under `jax.lax.scan` and returns per-episode totals and final metrics. An episode that ends (fall or
-finish) stops accumulating reward and keeps the metrics of its last live step.
+`run_episodes(env, state, horizon, act, ...)` steps a batch of episodes from `state` with an
+acting function and an optional per-step record function. The protocol lives here only:
+  - live mask: an episode is live at control step t while it has not ended and t < horizon;
+  - freeze at the end: an episode ends when the env says `done` (or `record` says it ended) at a
+    live step; its metrics keep the values of that last live step, `length` stops counting, and
+    with `freeze_state` its whole env state stops too (otherwise the batch's ended episodes step
+    on unread: cheaper than masking the physics state every step);
+  - chunks: `jax.lax.while_loop` over `jax.lax.scan` chunks of `chunk` steps, stopping once every
+    episode has ended or the horizon is reached (the last chunk's steps past the horizon are not
+    live); with a per-step `trace` (or `chunk=None`) the loop is instead one scan over the full
+    horizon;
+  - starts: `reset_by_track` resets a batch on given tracks (or the env's own random ones);
+  - devices: `over_devices` splits a batch over every local device (pmap).
+
+`rollout(env, policy, rng, n_envs, horizon)` (the curriculum's milestone checks during training
+and Table I) returns per-episode totals and final metrics; `switching.multi_rollout`,
+`switching.trace_rollout`, `dqn.dqn_rollout` and `sweep.sweep_rollout` are the others.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 PolicyFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs batch, rng) -> action batch
+# act(carry, state, live, key) -> (action batch, carry, aux): `state` the batch's env states
+# (leading axis B), `live` (B,) bool, `key` this step's key (None without `rng`); `aux` (anything)
+# goes to `record` / `trace` of the same step.
+ActFn = Callable[[Any, Any, jax.Array, Any], tuple]
+# record(carry, aux, state, nxt, live) -> (carry, end): `nxt` the stepped states; `end` (B,) bool
+# ends episodes besides the env's `done` (applied at live steps only), or None.
+RecordFn = Callable[[Any, Any, Any, Any, jax.Array], tuple]
+# trace(carry, aux, state, nxt, live) -> a pytree recorded for every step (leading axis horizon);
+# `carry` is the one after `record`.
+TraceFn = Callable[[Any, Any, Any, Any, jax.Array], Any]
+
+
+class Episodes(NamedTuple):
+    state: Any  # the batch's states after the last step run (frozen at each end with freeze_state)
+    carry: Any  # the acting carry after the last step run
+    metrics: dict  # every env metric of each episode's last live step (the reset's if none)
+    length: jax.Array  # (B,) float32: live steps
+    done: jax.Array  # (B,) float32: 1 where the episode ended within the horizon
+    trace: Any  # the per-step records (horizon, ...) of `trace`, else None
+
+
+def reset_by_track(env, keys: jax.Array, track_ids: jax.Array | None = None, **reset_args):
+    """A batch of `env.reset(key, track_id=id, **reset_args)`, one per key; `track_ids` None: the
+    env draws each track. `reset_args` (difficulty, guide_scale, ...; traced ok) go to every one."""
+    if track_ids is None:
+        return jax.vmap(lambda k: env.reset(k, **reset_args))(keys)
+    return jax.vmap(lambda k, i: env.reset(k, track_id=i, **reset_args))(keys, track_ids)
+
+
+def _where(mask, new, old):
+    """Per-episode select over a batched pytree (`mask` (B,) bool)."""
+    return jax.tree.map(
+        lambda n, o: jnp.where(mask.reshape((-1,) + (1,) * (jnp.ndim(n) - 1)), n, o), new, old)
+
+
+def run_episodes(env, state, horizon: int, act: ActFn, carry: Any = None, *,
+                 record: RecordFn | None = None, trace: TraceFn | None = None,
+                 rng: jax.Array | None = None, chunk: int | None = 50,
+                 freeze_state: bool = False) -> Episodes:
+    """Step the batch `state` (leading axis B) for at most `horizon` control steps.
+
+    Each step: `act` gives the actions (and its new carry), the env steps the whole batch,
+    `record` may update the carry and end episodes, then the live mask freezes what has ended
+    (see the module doc). With `rng`, step t's key is `jax.random.split(rng, horizon)[t]`.
+    `chunk` None (or a `trace`): one scan over the whole horizon, no early stop. Pure and
+    jittable (`horizon` and `chunk` static)."""
+    n = jax.tree.leaves(state.obs)[0].shape[0]
+    keys = None if rng is None else jax.random.split(rng, horizon)
+
+    def step(c, _):
+        state, ucarry, metrics, length, ended, t = c
+        live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
+        key = None if keys is None else keys[jnp.minimum(t, horizon - 1)]
+        action, ucarry, aux = act(ucarry, state, live, key)
+        nxt = jax.vmap(env.step)(state, action)
+        end = nxt.done > 0.5
+        if record is not None:
+            ucarry, more = record(ucarry, aux, state, nxt, live)
+            if more is not None:
+                end = end | more
+        rec = None if trace is None else trace(ucarry, aux, state, nxt, live)
+        metrics = _where(live, nxt.metrics, metrics)
+        length = length + live
+        ended = jnp.maximum(ended, (end & live).astype(jnp.float32))
+        state = _where(live, nxt, state) if freeze_state else nxt
+        return (state, ucarry, metrics, length, ended, t + 1), rec
+
+    zeros = jnp.zeros(n)
+    c = (state, carry, state.metrics, zeros, zeros, jnp.zeros((), jnp.int32))
+    if trace is not None or chunk is None:  # a per-step record has a fixed length
+        c, recs = jax.lax.scan(step, c, None, length=horizon)
+    else:
+        def run_chunk(c):
+            return jax.lax.scan(step, c, None, length=min(chunk, horizon))[0]
+
+        def not_finished(c):
+            return (c[5] < horizon) & jnp.any(c[4] < 0.5)
+
+        c, recs = jax.lax.while_loop(not_finished, run_chunk, c), None
+    state, carry, metrics, length, ended, _ = c
+    return Episodes(state, carry, metrics, length, ended, recs)
 
 
 def rollout(env, policy: PolicyFn, rng: jax.Array, n_envs: int, horizon: int,
-            track_ids: jax.Array | None = None, reset_args: dict | None = None) -> dict:
-    """Per-episode `reward` (sum), `length` (live steps), `done`, and every final metric.
+            track_ids: jax.Array | None = None, reset_args: dict | None = None,
+            chunk: int | None = 50) -> dict:
+    """Per-episode `reward` (sum over live steps), `length` (live steps), `done`, and every final
+    metric, of `n_envs` episodes of `policy(obs batch, key)`.
 
     `track_ids` (n_envs,) picks each episode's track from the env's bank; default: random.
     `reset_args` (e.g. the curriculum's difficulty, guide_scale, push_scale; traced ok) go to
-    every `env.reset`."""
+    every `env.reset`. Runs in chunks of `chunk` steps and stops early once every episode has
+    ended; `chunk=None` runs one scan over the horizon."""
     k_reset, k_run = jax.random.split(rng)
-    keys = jax.random.split(k_reset, n_envs)
-    kw = reset_args or {}
-    if track_ids is None:
-        state = jax.vmap(lambda k: env.reset(k, **kw))(keys)
-    else:
-        state = jax.vmap(lambda k, i: env.reset(k, track_id=i, **kw))(keys, track_ids)
+    state = reset_by_track(env, jax.random.split(k_reset, n_envs), track_ids, **(reset_args or {}))
 
-    def body(carry, key):
-        state, total, length, ended, metrics = carry
-        action = policy(state.obs, key)
-        nxt = jax.vmap(env.step)(state, action)
-        live = 1.0 - ended
-        total = total + jnp.where(ended > 0, 0.0, nxt.reward)  # never 0 * a frozen episode's
-        length = length + live
-        metrics = jax.tree.map(lambda new, old: jnp.where(ended > 0, old, new), nxt.metrics, metrics)
-        ended = jnp.maximum(ended, nxt.done)
-        return (nxt, total, length, ended, metrics), None
+    def act(total, state, live, key):
+        return policy(state.obs, key), total, None
 
-    zeros = jnp.zeros(n_envs)
-    carry = (state, zeros, zeros, zeros, state.metrics)
-    (state, total, length, ended, metrics), _ = jax.lax.scan(
-        body, carry, jax.random.split(k_run, horizon))
-    return {"reward": total, "length": length, "done": ended, **metrics}
+    def record(total, _, state, nxt, live):
+        return total + jnp.where(live, nxt.reward, 0.0), None  # never 0 * a frozen episode's
+
+    ep = run_episodes(env, state, horizon, act, jnp.zeros(n_envs), record=record, rng=k_run,
+                      chunk=chunk)
+    return {"reward": ep.carry, "length": ep.length, "done": ep.done, **ep.metrics}
 
 
 def summarize(result: dict, horizon: int) -> dict:

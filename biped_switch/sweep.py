@@ -37,12 +37,11 @@ import numpy as np
 from biped_switch import env as env_lib
 from biped_switch import policies as pol
 from biped_switch import terrain
-from biped_switch.config import default_sweep_config, default_terrain_config
+from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config
 from biped_switch.estimator import HM_SIZE
-from biped_switch.rollout import over_devices
+from biped_switch.rollout import over_devices, reset_by_track, run_episodes
 from biped_switch.switching import smoothed_success_pct
 
-SWEEP_TRACK_SEED = 20_000  # sweep tracks: disjoint from training (0..) and evaluation (10,000..)
 N_WINDOW = 5
 WINDOW_BEFORE = 2  # points before the switch step in the window (t-2, t-1)
 
@@ -161,63 +160,51 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     artifact, so only a line moved back gives it labels of 1)."""
     n = track_ids.shape[0]
     k_reset, k_u = jax.random.split(rng)
-    state = jax.vmap(lambda k, i: env.reset(k, track_id=i, guide_scale=guide_scale))(
-        jax.random.split(k_reset, n), track_ids)
+    state = reset_by_track(env, jax.random.split(k_reset, n), track_ids, guide_scale=guide_scale)
     switch_at = jax.random.uniform(k_u, (n,), maxval=switch_max_m)
-    f = jnp.zeros(n)
-    carry = {"state": state, "active": sources.astype(jnp.int32), "switched": f > 1,
+    carry = {"active": sources.astype(jnp.int32), "switched": jnp.zeros(n, bool),
              "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
-             "steps": jnp.zeros(n, jnp.int32), "win": jax.vmap(window_init)(state.obs),
-             "t": jnp.zeros((), jnp.int32)}
+             "win": jax.vmap(window_init)(state.obs)}
     label_steps = jax.vmap(functools.partial(label_step, steps_past=steps_past))
 
-    def step(c, _):
-        state = c["state"]
+    def act(c, state, live, _):
         si = jax.vmap(env.switch_inputs)(state)
         det = si["detect"]
-        live = is_live(c["lab"], c["t"], horizon)  # the last chunk may run past the horizon
         now = live & ~c["switched"] & (det["kind"] >= 0) & (det["dist_m"] <= switch_at)
         active = jnp.where(now, target, c["active"])
-        dist_m = jnp.where(now, det["dist_m"], c["dist_m"])
-        switched = c["switched"] | now
         win = jax.vmap(window_update)(c["win"], state.obs, now, c["switched"] & live)
         action = pol.select(pol.all_actions(apply, params, state.obs), active)
-        nxt = jax.vmap(env.step)(state, action)
+        return action, {**c, "active": active, "switched": c["switched"] | now, "win": win,
+                        "dist_m": jnp.where(now, det["dist_m"], c["dist_m"])}, (si, c["switched"])
+
+    def record(c, aux, state, nxt, live):
+        si, switched_before = aux
         # touchdowns counted on the observation's own contact flags (this step vs the last)
-        lab = label_steps(c["lab"], live, c["switched"], switched, si["contact"],
+        lab = label_steps(c["lab"], live, switched_before, c["switched"], si["contact"],
                           si["contact_prev"], si["soles"][..., 0],
                           state.info["art_x1"][:, 0] + end_offset_m,
                           nxt.metrics["fell"] > 0.5, nxt.metrics["success"] > 0.5, nxt.done > 0.5)
-        # Ended episodes are frozen. Not needed for the record (it reads only live steps), but
-        # it keeps the compiled step bit-identical to the env's own: the window test compares
-        # observations to 1e-4 after ~200 chaotic contact steps, and a regrouped program drifts.
-        keep = ~live
-        state = jax.tree.map(
-            lambda o, n_: jnp.where(keep.reshape((-1,) + (1,) * (n_.ndim - 1)), o, n_), state, nxt)
-        return {"state": state, "active": active, "switched": switched, "dist_m": dist_m,
-                "lab": lab, "steps": c["steps"] + live.astype(jnp.int32), "win": win,
-                "t": c["t"] + 1}, None
+        return {**c, "lab": lab}, lab.ended  # a label (or a fall) ends the episode
 
-    def run_chunk(c):
-        return jax.lax.scan(step, c, None, length=chunk)[0]
-
-    c = jax.lax.while_loop(lambda c: (c["t"] < horizon) & jnp.any(~c["lab"].ended), run_chunk,
-                           carry)
+    # Ended episodes are frozen (`freeze_state`). Not needed for the record (it reads only live
+    # steps), but it keeps the compiled step bit-identical to the env's own: the window test
+    # compares observations to 1e-4 after ~200 chaotic contact steps, and a regrouped program
+    # drifts.
+    ep = run_episodes(env, state, horizon, act, carry, record=record, chunk=chunk,
+                      freeze_state=True)
+    c, lab = ep.carry, ep.carry["lab"]
     # the window is complete two steps after the switch; a label needs >= 2 steps, so later
-    lab = c["lab"]
     valid = c["switched"] & ~lab.fell_before
     return {"window": jax.vmap(window_fill)(c["win"]), "label": lab.label, "valid": valid,
             "switch_dist_m": c["dist_m"], "switch_at_m": switch_at, "source": sources,
-            "track_id": track_ids, "fell": lab.fell, "steps": c["steps"],
+            "track_id": track_ids, "fell": lab.fell, "steps": ep.length.astype(jnp.int32),
             "steps_past": lab.steps}
 
 
 def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
     """Single-artifact `target` tracks SWEEP_TRACK_SEED + i; `overrides` (env config: the physics
     `backend`, the suite's action mode and phase clock) go to `env.make_env`."""
-    tcfg = default_terrain_config()
-    tcfg.n_artifacts = 1
-    return env_lib.make_env(target, init, terrain_cfg=tcfg, n_tracks=n_tracks,
+    return env_lib.make_env(target, init, n_artifacts=1, n_tracks=n_tracks,
                             seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
 
 
@@ -528,7 +515,7 @@ def main(argv=None) -> int:
     p.add_argument("--guide-scale", type=float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
     p.add_argument("--difficulty", type=float, default=None, help="terrain difficulty (default 1)")
-    p.add_argument("--backend", default="auto", choices=("auto",) + env_lib.BACKENDS,
+    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     a = p.parse_args(argv)
     cfg = default_sweep_config()

@@ -30,11 +30,13 @@ import numpy as np
 
 from biped_switch import policies as pol
 from biped_switch.config import default_switching_config
+from biped_switch.rollout import reset_by_track, run_episodes
+from biped_switch.terrain import ARTIFACT_KINDS
 
 METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator")
 METHOD_INDEX = {m: i for i, m in enumerate(METHODS)}
 N_POLICIES = len(pol.POLICY_NAMES)
-N_TARGETS = N_POLICIES - 1  # artifact kinds: jumps, gaps, stairs
+N_TARGETS = len(ARTIFACT_KINDS)  # the switch targets: jumps, gaps, stairs
 
 
 class Rules(NamedTuple):
@@ -184,79 +186,72 @@ def controller_inputs(env, state, est_apply, est_params, rules: Rules) -> dict:
     return {**si, "com_ok": com_ok, "est_probs": probs}
 
 
+def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules: Rules):
+    """(ss, state, live, u01) -> (action, ss, controller inputs, switched now): one control step
+    of the switching controller for a batch; switches of ended episodes are not counted."""
+    def act(ss, state, live, u01):
+        ci = controller_inputs(env, state, est_apply, est_params, rules)
+        det = ci["detect"]
+        n_before = ss.n_switches
+        ss, switched = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
+            ss, det["kind"], det["index"], det["dist_m"], ci["com_ok"], ci["est_probs"], u01, rules)
+        ss = ss._replace(n_switches=jnp.where(live, ss.n_switches, n_before))
+        action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
+        return action, ss, ci, switched
+
+    return act
+
+
 def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
                   rng: jax.Array, n_envs: int, horizon: int, track_ids=None,
                   chunk: int = 50, guide_scale=0.0) -> dict:
     """Episodes on the env's tracks, each starting with the walk policy and switching by `rules`.
 
-    Runs in chunks of `chunk` steps and stops early once every episode has ended. Returns the
-    per-episode final env metrics, `length` (live steps) and `n_switches`. `guide_scale` > 0
-    turns the scripted gait's guide forces on (tests and diagnostics only)."""
+    Runs in chunks of `chunk` steps and stops early once every episode has ended
+    (`rollout.run_episodes`; ended episodes step on unread). Returns the per-episode final env
+    metrics, `length` (live steps), `done` and `n_switches`. `guide_scale` > 0 turns the scripted
+    gait's guide forces on (tests and diagnostics only)."""
     k_reset, k_run = jax.random.split(rng)
-    keys = jax.random.split(k_reset, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
-    state = jax.vmap(lambda k, i: env.reset(k, track_id=i, guide_scale=guide_scale))(keys, track_ids)
-    carry = (state, init_state(n_envs), jnp.zeros(n_envs), jnp.zeros(n_envs), state.metrics,
-             jnp.zeros((), jnp.int32), k_run)
+    state = reset_by_track(env, jax.random.split(k_reset, n_envs), track_ids,
+                           guide_scale=guide_scale)
+    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules)
 
-    def step(c, _):
-        state, ss, length, ended, metrics, t, key = c
-        key, k_u = jax.random.split(key)
-        ci = controller_inputs(env, state, est_apply, est_params, rules)
-        det = ci["detect"]
-        live = (ended < 0.5) & (t < horizon)  # the last chunk may run past the horizon
-        n_before = ss.n_switches
-        ss, _ = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
-            ss, det["kind"], det["index"], det["dist_m"], ci["com_ok"], ci["est_probs"],
-            jax.random.uniform(k_u, (n_envs,)), rules)
-        ss = ss._replace(n_switches=jnp.where(live, ss.n_switches, n_before))  # ended: not counted
-        action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
-        nxt = jax.vmap(env.step)(state, action)
-        # An ended episode keeps stepping (its metrics are frozen below and its decisions unused):
-        # cheaper than masking the whole physics state every step.
-        state = nxt
-        metrics = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt.metrics, metrics)
-        length = length + live
-        ended = jnp.maximum(ended, nxt.done * live)
-        return (state, ss, length, ended, metrics, t + 1, key), None
+    def act(c, state, live, _):
+        ss, key = c
+        key, k_u = jax.random.split(key)  # a carried key, split per step (the random rule's draws)
+        action, ss, _, _ = switch_act(ss, state, live, jax.random.uniform(k_u, (n_envs,)))
+        return action, (ss, key), None
 
-    def run_chunk(c):
-        return jax.lax.scan(step, c, None, length=chunk)[0]
-
-    def not_finished(c):
-        return (c[5] < horizon) & jnp.any(c[3] < 0.5)
-
-    state, ss, length, ended, metrics, t, _ = jax.lax.while_loop(not_finished, run_chunk, carry)
-    return {**metrics, "length": length, "done": ended, "n_switches": ss.n_switches}
+    ep = run_episodes(env, state, horizon, act, (init_state(n_envs), k_run), chunk=chunk)
+    return {**ep.metrics, "length": ep.length, "done": ep.done,
+            "n_switches": ep.carry[0].n_switches}
 
 
 def trace_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
                   rng: jax.Array, track_id, horizon: int, guide_scale=0.0) -> dict:
     """One episode with a per-step record (for the paper's Fig. 5): time, CoM, soles, contacts,
-    detection, every estimator's output, CoM-over-feet, active policy, switch events."""
-    state = jax.vmap(lambda k: env.reset(k, track_id=track_id, guide_scale=guide_scale))(rng[None])
-    ss = init_state(1)
+    detection, every estimator's output, CoM-over-feet, active policy, switch events. The episode
+    is frozen (its whole state) once it ends and the record runs to the horizon (`ended` = 1)."""
+    state = reset_by_track(env, rng[None], jnp.reshape(jnp.asarray(track_id), (1,)),
+                           guide_scale=guide_scale)
+    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules)
 
-    def step(c, key):
-        state, ss, ended = c
-        ci = controller_inputs(env, state, est_apply, est_params, rules)
+    def act(ss, state, live, key):
+        action, ss, ci, switched = switch_act(ss, state, live, jax.random.uniform(key, (1,)))
+        return action, ss, (ci, switched)
+
+    def trace(ss, aux, state, nxt, live):
+        ci, switched = aux
         det = ci["detect"]
-        ss, switched = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
-            ss, det["kind"], det["index"], det["dist_m"], ci["com_ok"], ci["est_probs"],
-            jax.random.uniform(key, (1,)), rules)
-        action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
-        nxt = jax.vmap(env.step)(state, action)
-        rec = {"time_s": state.info["time_s"][0], "qpos": state.pipeline_state.qpos[0],
-               "com_x_m": ci["com_x_m"][0],
-               "body_com": ci["body_com"][0], "soles": ci["soles"][0], "contact": ci["contact"][0],
-               "det_kind": det["kind"][0], "det_dist_m": det["dist_m"][0],
-               "est_probs": ci["est_probs"][0], "com_ok": ci["com_ok"][0], "active": ss.active[0],
-               "switched": switched[0], "ended": ended, "fell": nxt.metrics["fell"][0],
-               "success": nxt.metrics["success"][0]}
-        live = ended < 0.5
-        state = jax.tree.map(lambda n, o: jnp.where(live, n, o), nxt, state)
-        return (state, ss, jnp.maximum(ended, nxt.done[0] * live)), rec
+        return {"time_s": state.info["time_s"][0], "qpos": state.pipeline_state.qpos[0],
+                "com_x_m": ci["com_x_m"][0],
+                "body_com": ci["body_com"][0], "soles": ci["soles"][0], "contact": ci["contact"][0],
+                "det_kind": det["kind"][0], "det_dist_m": det["dist_m"][0],
+                "est_probs": ci["est_probs"][0], "com_ok": ci["com_ok"][0], "active": ss.active[0],
+                "switched": switched[0], "ended": (~live[0]).astype(jnp.float32),
+                "fell": nxt.metrics["fell"][0], "success": nxt.metrics["success"][0]}
 
-    _, rec = jax.lax.scan(step, (state, ss, jnp.zeros(())), jax.random.split(rng, horizon))
-    return rec
+    return run_episodes(env, state, horizon, act, init_state(1), trace=trace, rng=rng,
+                        freeze_state=True).trace

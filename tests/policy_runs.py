@@ -1,6 +1,6 @@
-"""Small behaviour-policy runs in the trainer's checkpoint format (train._save, config.json), made
+"""Small behaviour-policy runs in the trainer's checkpoint format (runs.save_ppo, config.json), made
 without an env or a training step, for tests that load policies (policies.load_suite,
-train.load_policy, the CLIs)."""
+policies.load_policy, the CLIs)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import types
 import jax
 
 from biped_switch import ppo
-from biped_switch import train as train_lib
-from biped_switch.config import default_env_config
+from biped_switch import runs as runs_lib
+from biped_switch.config import default_env_config, default_train_config
 from biped_switch.env import STATE_SIZE
 
 TINY_NETWORK = {"policy_hidden": (8,), "value_hidden": (8,), "hm_hidden": (4,)}
@@ -23,7 +23,7 @@ def fake_policy_run(runs: pathlib.Path, policy: str, init: str = "stand", env: d
     """<runs>/<policy>_<init>/ with config.json and one checkpoint of freshly initialised
     parameters (`seed`); `env` overrides the train config's env section (action, phase_obs),
     `network` its network sizes (default: tiny). Returns the checkpoint directory."""
-    cfg = train_lib.default_train_config("cpu")
+    cfg = default_train_config("cpu")
     cfg.policy, cfg.init, cfg.seed = policy, init, seed
     cfg.env.update(**(env or {}))
     cfg.network.update(**{**TINY_NETWORK, **(network or {})})
@@ -37,4 +37,4 @@ def fake_policy_run(runs: pathlib.Path, policy: str, init: str = "stand", env: d
     (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
     progress = {"step": step, "wall_s": 1.0, "curriculum": DONE, "curriculum_before": DONE,
                 "total_steps": step, "backend": "none", "device": "cpu", "n_devices": 1}
-    return train_lib._save(run_dir, step, state, progress)
+    return runs_lib.save_ppo(run_dir, step, state, progress)

@@ -18,6 +18,17 @@ def test_milestone_threshold_is_hand_computed():
     assert not bool(cl.milestone(3.77, 1.0, CFG))
 
 
+def test_fall_cap_blocks_a_milestone():
+    """A high reward per step with too many falls (late falls at an artifact) is no milestone."""
+    assert CFG.max_fell == pytest.approx(0.25)
+    assert bool(cl.milestone(4.5, 1.0, CFG, fell_frac=0.25))
+    assert not bool(cl.milestone(4.5, 1.0, CFG, fell_frac=0.26))
+    cs = cl.update(cl.CurriculumState(0, 0.9, 1.0, 0.0), 4.5, 1.0, CFG, fell_frac=0.7)
+    assert float(cs.difficulty) == pytest.approx(0.9)
+    cs = cl.update(cs, 4.5, 1.0, CFG, fell_frac=0.1)
+    assert float(cs.difficulty) == pytest.approx(1.0)
+
+
 def test_no_milestone_no_change():
     cs = cl.CurriculumState(0, 0.3, 1.0, 0.0)
     for _ in range(5):
@@ -79,7 +90,7 @@ def test_dict_round_trip():
 
 
 def test_curve_series_after_a_restart():
-    from biped_switch.train import curve_series
+    from biped_switch.runs import curve_series
 
     rows = [{"step": "1", "r": "1"}, {"step": "2", "r": "2"}, {"step": "3", "r": ""},
             {"step": "4", "r": "4"},  # chunk abandoned by a restart at step 2

@@ -12,14 +12,15 @@ SCRIPT = textwrap.dedent("""
     import json
     import jax, numpy as np
     from biped_switch import ppo, train
+    from biped_switch.config import default_train_config
     assert jax.local_device_count() == 2, jax.devices()
-    cfg = train.default_train_config("cpu")
+    cfg = default_train_config("cpu")
     cfg.policy, cfg.n_tracks, cfg.episode_length = "walk", 2, 10
     cfg.total_timesteps = cfg.chunk_timesteps = 256
     cfg.ppo.update(num_envs=8, num_minibatches=2, unroll_length=8)
     cfg.network.update(policy_hidden=(16,), value_hidden=(16,))
     cfg.eval.update(n_envs=4, horizon_steps=20)
-    env = train.make_env(cfg)
+    env = train.train_env(cfg)
     tr = ppo.make_train(cfg, env)
     ts = tr.init(jax.random.PRNGKey(0))
     envs = tr.reset_envs(jax.random.PRNGKey(1), jax.numpy.asarray([1.0, 1.0, 0.0]))

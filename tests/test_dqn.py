@@ -14,6 +14,7 @@ from brax.envs.base import Env, State
 
 from biped_switch import dqn
 from biped_switch import policies as pol
+from biped_switch.config import default_dqn_config
 from biped_switch.env import STATE_SIZE
 
 GRID = (2, 2)  # the fake env's heightmap
@@ -358,7 +359,7 @@ def test_dqn_rollout_on_fake_env():
 
 # ----------------------------------------------------------------------- the trainer
 def _tiny_cfg(**kw):
-    cfg = dqn.default_dqn_config("cpu")
+    cfg = default_dqn_config("cpu")
     cfg.update(num_envs=4, log_every=5, chunk_env_steps=40, total_env_steps=120, learning_starts=20,
                replay_capacity=200, batch_size=16, updates_per_collect=1, target_update_period=4,
                max_episode_s=0.2)
@@ -368,13 +369,13 @@ def _tiny_cfg(**kw):
 
 
 def test_default_configs():
-    gpu, cpu = dqn.default_dqn_config("gpu"), dqn.default_dqn_config("cpu")
+    gpu, cpu = default_dqn_config("gpu"), default_dqn_config("cpu")
     assert cpu.num_envs < gpu.num_envs and cpu.total_env_steps < gpu.total_env_steps
     for c in (gpu, cpu):
         assert c.learning_starts <= c.replay_capacity and c.oracle_bonus > 0
         assert c.epsilon.end < c.epsilon.start
     with pytest.raises(ValueError):
-        dqn.default_dqn_config("tpu")
+        default_dqn_config("tpu")
 
 
 def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):

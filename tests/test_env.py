@@ -389,21 +389,35 @@ def _reward_reference(env, st, action, paused, h_ref):
     vx, pitch, roll, h = obs[:, 42], obs[:, 48], obs[:, 49], obs[:, 50]
     target = 0.0 if paused else env.cfg.target_speed_mps
     a = 0.0 if paused else np.clip(action, -1, 1)  # ignored actions cost nothing in the pause
-    return (w.progress * np.minimum(vx, target) + w.speed * np.exp(-(vx - target) ** 2 / 0.1)
-            + w.alive + w.upright * np.cos(pitch) * np.cos(roll)
-            + w.height * np.exp(-(h - h_ref) ** 2 / 0.01) - w.lateral * (np.abs(y) + np.abs(yaw))
-            - w.torque * np.mean(a ** 2) - w.fall * st.metrics["fell"])
+    ones = np.ones_like(vx)
+    return {"progress": w.progress * np.minimum(vx, target),
+            "speed": w.speed * np.exp(-(vx - target) ** 2 / 0.1), "alive": w.alive * ones,
+            "upright": w.upright * np.cos(pitch) * np.cos(roll),
+            "height": w.height * np.exp(-(h - h_ref) ** 2 / 0.01),
+            "lateral": -w.lateral * (np.abs(y) + np.abs(yaw)),
+            "torque": -w.torque * np.mean(a ** 2) * ones, "fall": -w.fall * st.metrics["fell"]}
+
+
+def _check_reward(st, ref):
+    """The reward and each logged reward/<term> metric against the reference terms."""
+    np.testing.assert_allclose(st.reward, sum(ref.values()), atol=1e-4)
+    assert {k for k in st.metrics if k.startswith("reward/")} == {f"reward/{k}" for k in ref}
+    for k, v in ref.items():
+        np.testing.assert_allclose(st.metrics[f"reward/{k}"], v, atol=1e-4, err_msg=k)
 
 
 def test_reward_against_reference(env, hold_traj, fall_traj, pause_runs):
     _, h_ref = _stand_reference(env.biped)  # the keyframe's pelvis CoM height
     for st in hold_traj[1::7]:
-        np.testing.assert_allclose(st.reward, _reward_reference(env, st, 0.0, True, h_ref), atol=1e-4)
+        _check_reward(st, _reward_reference(env, st, 0.0, True, h_ref))
     for st in fall_traj[1:40:3]:
-        np.testing.assert_allclose(st.reward, _reward_reference(env, st, 0.0, False, h_ref), atol=1e-4)
+        _check_reward(st, _reward_reference(env, st, 0.0, False, h_ref))
     for t in (3, 26):
         st = pause_runs[1.0][t]
-        np.testing.assert_allclose(st.reward, _reward_reference(env, st, 1.0, t < 25, h_ref), atol=1e-4)
+        _check_reward(st, _reward_reference(env, st, 1.0, t < 25, h_ref))
+    fall_steps = [st for st in fall_traj if np.any(st.metrics["fell"] > 0)]
+    assert fall_steps  # the fall term is exercised: checked at the first fall
+    _check_reward(fall_steps[0], _reward_reference(env, fall_steps[0], 0.0, False, h_ref))
     # standing still scores about alive + speed(0) + upright + height
     w = env.cfg.reward
     np.testing.assert_allclose(hold_traj[-1].reward, w.alive + w.speed + w.upright + w.height,

@@ -5,15 +5,21 @@ import json
 import numpy as np
 import pytest
 
+from biped_switch import config
 from biped_switch import evaluate as ev
+from biped_switch import runs as runs_lib
+from biped_switch import stats
+from biped_switch import table1
+from biped_switch import table2
+from biped_switch import table3
 
 
 def test_wilson_interval_hand_values():
-    lo, hi = ev.wilson_ci(5, 10)  # p = 0.5, n = 10: 0.2366 .. 0.7634
+    lo, hi = stats.wilson_ci(5, 10)  # p = 0.5, n = 10: 0.2366 .. 0.7634
     assert (lo, hi) == (pytest.approx(0.23659, abs=1e-5), pytest.approx(0.76341, abs=1e-5))
-    lo, hi = ev.wilson_ci(0, 20)  # all failures: [0, 0.1611]
+    lo, hi = stats.wilson_ci(0, 20)  # all failures: [0, 0.1611]
     assert lo == 0.0 and hi == pytest.approx(0.16113, abs=1e-5)
-    lo, hi = ev.wilson_ci(20, 20)
+    lo, hi = stats.wilson_ci(20, 20)
     assert hi == 1.0 and lo == pytest.approx(1 - 0.16113, abs=1e-5)
 
 
@@ -25,13 +31,13 @@ def test_episode_table_from_hand_made_rollouts():
         "fell": np.array([0.0, 0.0, 1.0, 1.0]),
         "fail_kind": np.array([-1.0, -1.0, 1.0, 2.0]),
     }
-    t = ev.episode_table(res)
+    t = stats.episode_table(res)
     assert t["n"] == 4
     assert t["distance_pct"] == pytest.approx(68.75)
     sd = np.std([100, 100, 50, 25], ddof=1)
     assert t["distance_ci"][1] - t["distance_pct"] == pytest.approx(1.96 * sd / 2)
     assert t["success_pct"] == pytest.approx(50.0)
-    assert t["success_ci"] == [pytest.approx(100 * x) for x in ev.wilson_ci(2, 4)]
+    assert t["success_ci"] == [pytest.approx(100 * x) for x in stats.wilson_ci(2, 4)]
     assert t["fell_pct"] == pytest.approx(50.0)
     assert t["fail_on"] == {"jumps": 0.0, "gaps": pytest.approx(25.0), "stairs": pytest.approx(25.0)}
 
@@ -39,10 +45,10 @@ def test_episode_table_from_hand_made_rollouts():
 def test_single_horizon_lets_the_acceptance_speed_finish():
     """Table I's derived time limit: the pause, then the farthest finish line at 0.6 m/s with a
     20% margin (gaps tracks reach 42 m: the old fixed 60 s cut a 0.6 m/s walker off at 35 m)."""
-    assert ev.single_horizon_s(27.0, 0.5) == 55.0  # ceil(0.5 + 1.2 * 27 / 0.6) = ceil(54.5)
-    assert ev.single_horizon_s(42.3, 0.0) == 85.0  # ceil(84.6)
+    assert table1.single_horizon_s(27.0, 0.5) == 55.0  # ceil(0.5 + 1.2 * 27 / 0.6) = ceil(54.5)
+    assert table1.single_horizon_s(42.3, 0.0) == 85.0  # ceil(84.6)
     for finish in (20.0, 27.3, 42.3):
-        h = ev.single_horizon_s(finish, 0.5)
+        h = table1.single_horizon_s(finish, 0.5)
         assert 0.5 + finish / 0.6 < h <= 0.5 + 1.2 * finish / 0.6 + 1.0
 
 
@@ -51,7 +57,7 @@ def test_speed_table_by_hand():
     # a fall in the pause (0 m in 0.2 s: the walking time is floored at one step)
     res = {"distance_m": np.array([10.0, 6.0, 0.0]), "length": np.array([1025, 525, 10]),
            "success": np.array([1.0, 0.0, 0.0])}
-    t = ev.speed_table(res, 0.02, 0.5)
+    t = table1.speed_table(res, 0.02, 0.5)
     assert t["speed_mps"] == pytest.approx((0.5 + 0.6 + 0.0) / 3)
     assert t["speed_success_mps"] == pytest.approx(0.5)
     assert t["speed_alive_mps"] == pytest.approx((10 / 20.5 + 6 / 10.5 + 0.0) / 3)
@@ -63,11 +69,11 @@ def test_markdown_row_has_paper_figures():
     row = {"policy": "gaps", "init": "random", "n": 4, "distance_pct": 68.75, "distance_ci": [40, 90],
            "success_pct": 50.0, "success_ci": [15, 85], "train_step": 1000,
            "curriculum": {"stage_name": "terrain", "difficulty": 0.3, "guide_scale": 1.0}}
-    md = ev.table1_markdown([row])
+    md = table1.table1_markdown([row])
     assert "| gaps | random | 4 | 68.8 (40.0-90.0) | 50.0 (15.0-85.0) | 87.4 | 75.5 |" in md
     row.update(speed_mps=0.61, speed_ci=[0.58, 0.64], horizon_s=85.0, track_seed=123,
                backend="mujoco")
-    md = ev.table1_markdown([row])
+    md = table1.table1_markdown([row])
     assert "| terrain d=0.3 g=1.0 | 0.61 (0.58-0.64) | 85 | 123 | mujoco |" in md
 
 
@@ -76,7 +82,6 @@ def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
     evaluation tracks), in an env with the policy's env overrides on the chosen backend, and the
     table and JSON say which tracks, backend and horizon it ran with."""
     from biped_switch import terrain
-    from biped_switch import train as train_lib
     from policy_runs import fake_policy_run
 
     ckpt = fake_policy_run(tmp_path / "runs", "walk")
@@ -95,15 +100,15 @@ def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
     assert ev.main(argv) == 0
     (kw, env), = made
     assert kw["seed"] == 123 and kw["backend"] == "auto"
-    assert {k: kw[k] for k in train_lib.policy_env_overrides(ckpt)} == \
-        train_lib.policy_env_overrides(ckpt)
+    assert {k: kw[k] for k in runs_lib.policy_env_overrides(ckpt)} == \
+        runs_lib.policy_env_overrides(ckpt)
 
     def bank(seed):
         return terrain.stack_tracks([terrain.generate_track(seed + i, "walk", 1.0) for i in range(2)],
                                     env.biped.box_capacity, env.terrain_cfg.n_artifacts).segments
 
     np.testing.assert_array_equal(env.bank.segments, bank(123))
-    assert not np.array_equal(env.bank.segments, bank(ev.EVAL_TRACK_SEED))  # other tracks
+    assert not np.array_equal(env.bank.segments, bank(config.EVAL_TRACK_SEED))  # other tracks
     doc = json.loads((out / "table1.json").read_text())
     row, = doc["rows"]
     assert doc["settings"]["track_seed"] == doc["track_seed"] == row["track_seed"] == 123
@@ -133,17 +138,17 @@ def test_retrain_cost_from_logs(tmp_path):
     (res / "estimators").mkdir()
     for k in ("jumps", "gaps", "stairs"):
         (res / "estimators" / f"stand_{k}.json").write_text(json.dumps({"metrics": {"train_s": 720.0}}))  # 0.2 h
-    doc = ev.retrain_cost(runs, res)
+    doc = table3.retrain_cost(runs, res)
     rows = {r["method"]: r for r in doc["rows"]}
     assert rows["ours"]["hours"] == pytest.approx(1.0 + 3 * 0.1 + 3 * 0.2)
     assert rows["dqn"]["hours"] is None and rows["end_to_end"]["hours"] is None
     assert any("DQN" in m for m in doc["missing"])
     _fake_run(runs / "dqn_stand", 7200.0)
     _fake_run(runs / "mixed_stand", 3 * 3600.0, step=5000)
-    rows = {r["method"]: r for r in ev.retrain_cost(runs, res)["rows"]}
+    rows = {r["method"]: r for r in table3.retrain_cost(runs, res)["rows"]}
     assert rows["dqn"]["hours"] == pytest.approx(1.0 + 2.0)
     assert rows["end_to_end"]["hours"] == pytest.approx(3.0)
-    md = ev.table3_markdown(ev.retrain_cost(runs, res))
+    md = table3.table3_markdown(table3.retrain_cost(runs, res))
     assert "| ours | 1.90 |" in md and "| end_to_end | 3.00 |" in md
     assert all(r["status"] == "complete" for r in rows.values())  # no goal or curriculum recorded
 
@@ -159,7 +164,7 @@ def test_retrain_cost_flags_unfinished_and_stand_in_runs(tmp_path):
               curriculum={"stage_name": "guides", "difficulty": 1.0, "guide_scale": 0.8})
     _fake_run(runs / "mixed_stand", 7200.0, step=50, total_steps=100, **done)
     _fake_run(runs / "dqn_stand", 3600.0, step=10, total_env_steps=10, stand_in="walk")
-    doc = ev.retrain_cost(runs, res)
+    doc = table3.retrain_cost(runs, res)
     rows = {r["method"]: r for r in doc["rows"]}
     assert rows["ours"]["hours"] is None and rows["ours"]["status"] == "not measured"  # no sweeps
     assert rows["ours"]["device"] == "cuda:0 x2"
@@ -167,7 +172,7 @@ def test_retrain_cost_flags_unfinished_and_stand_in_runs(tmp_path):
     assert rows["dqn"]["status"] == ("stairs_stand curriculum unfinished (guides d=1.0 guide=0.8); "
                                      "dqn_stand chose among stand-ins (walk)")
     assert rows["end_to_end"]["status"] == "mixed_stand at step 50 of 100"
-    md = ev.table3_markdown(doc)
+    md = table3.table3_markdown(doc)
     assert "| end_to_end | 2.00 | policy 2.00 | cuda:0 x1 | mixed_stand at step 50 of 100 | 34 |" in md
 
 
@@ -180,7 +185,7 @@ def _fake_ckpt(run_dir, step=1):
 def test_available_methods_names_what_is_missing(tmp_path):
     runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
     _fake_ckpt(runs / "walk_stand")
-    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end"}
@@ -195,11 +200,11 @@ def test_available_methods_names_what_is_missing(tmp_path):
             (est / f"{init}_{k}").mkdir(parents=True)
     lookup.mkdir()
     (lookup / "lookup_stand.json").write_text("{}")
-    ok, skipped = ev.available_methods(ev.MULTI_METHODS, runs, est, lookup)
-    assert ok == list(ev.MULTI_METHODS) and skipped == []
-    assert ev.find_dqn(runs) == runs / "dqn_stand"
-    assert ev.find_dqn(runs, dqn_dir=tmp_path / "no_dqn") is None  # an explicit directory only
-    assert ev.find_dqn(tmp_path / "no_runs", "random") is None
+    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    assert ok == list(table2.MULTI_METHODS) and skipped == []
+    assert runs_lib.find_dqn(runs) == runs / "dqn_stand"
+    assert runs_lib.find_dqn(runs, dqn_dir=tmp_path / "no_dqn") is None  # an explicit directory only
+    assert runs_lib.find_dqn(tmp_path / "no_runs", "random") is None
 
 
 def test_demo_horizon_lets_the_target_speed_finish():
@@ -211,7 +216,7 @@ def test_demo_horizon_lets_the_target_speed_finish():
     tcfg = default_terrain_config()
     tcfg.n_artifacts = 3
     h = demo.horizon_for(6, 3)
-    finish = [terrain.generate_track(ev.MULTI_TRACK_SEED + i, "mixed", 1.0, tcfg).artifacts[-1][2]
+    finish = [terrain.generate_track(config.MULTI_TRACK_SEED + i, "mixed", 1.0, tcfg).artifacts[-1][2]
               + tcfg.finish_after_m for i in range(6)]
     need = [0.5 + f / 0.8 for f in finish]  # pause, then walking at 0.8 m/s
     assert h >= 1.4 * max(need) - 1.4 * 0.5 and h < 1.4 * max(need) + 1.0

@@ -1,6 +1,6 @@
-"""The multi-policy switching rollout on the shared env: the chunked early-stopping rollout agrees
-with the per-step trace (a plain scan), switches happen where the rule says, and the Table II
-metrics on synthetic outcomes."""
+"""The multi-policy switching rollout on the shared env: the shared episode loop against a plain
+Python loop, the chunked early-stopping rollout agrees with the per-step trace (a plain scan),
+switches happen where the rule says, and the Table II metrics on synthetic outcomes."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_switch import evaluate
+from biped_switch import rollout as ro
+from biped_switch import stats
 from biped_switch import switching as sw
+from biped_switch import table2
 
 from conftest import B, TRACK_IDS
 
@@ -40,6 +42,67 @@ def multi_fn(env):
 def trace_fn(env):
     return jax.jit(lambda rules, rng, tid: sw.trace_rollout(
         env, _apply, PARAMS, _est, EST, rules, rng, tid, HORIZON, guide_scale=1.0))
+
+
+# The shared loop against a plain Python loop: envs 0 and 1 unguided (they fall after the stand
+# pause), 2 and 3 walked by the guides and ended by `record` at their 40th / 60th live step.
+LOOP_GUIDES = np.array([0, 0, 1, 1], np.float32)
+LOOP_TORQUE = np.array([0.0, 0.3, 0.0, 0.0], np.float32)
+LOOP_END_AT = np.array([10**6, 10**6, 40, 60], np.int32)
+LOOP_HORIZON, LOOP_CHUNK = 200, 16
+
+
+def _loop_act(c, state, live, key):
+    count, steps_run, total = c
+    action = LOOP_TORQUE[:, None] + 0.05 * jax.random.normal(key, (state.obs.shape[0], 12))
+    return action, (count + live.astype(jnp.int32), steps_run + 1, total), None
+
+
+def _loop_record(c, _, state, nxt, live):
+    count, steps_run, total = c
+    return (count, steps_run, total + jnp.where(live, nxt.reward, 0.0)), count >= LOOP_END_AT
+
+
+def test_episode_loop_matches_a_python_loop(env, fns, batch0):
+    info = dict(batch0.info)
+    info["guide_scale"] = jnp.asarray(LOOP_GUIDES)
+    start = batch0.replace(info=info)
+    rng = jax.random.PRNGKey(7)
+    run = jax.jit(lambda s, rng: ro.run_episodes(
+        env, s, LOOP_HORIZON, _loop_act, (jnp.zeros(B, jnp.int32), jnp.int32(0), jnp.zeros(B)),
+        record=_loop_record, rng=rng, chunk=LOOP_CHUNK, freeze_state=True))
+    ep = jax.device_get(run(start, rng))
+
+    # reference: step the batch by hand; an episode ends at its first done (or its END_AT-th step)
+    keys = jax.random.split(rng, LOOP_HORIZON)
+    s, end_step = start, np.zeros(B, int)
+    total, metrics, qpos = np.zeros(B), [None] * B, [None] * B
+    for t in range(LOOP_HORIZON):
+        a = LOOP_TORQUE[:, None] + 0.05 * jax.random.normal(keys[t], (B, 12))
+        s = jax.device_get(fns["step"](s, jnp.asarray(a, jnp.float32)))
+        for b in np.flatnonzero(end_step == 0):
+            total[b] += s.reward[b]
+            metrics[b] = {k: v[b] for k, v in s.metrics.items()}
+            qpos[b] = s.pipeline_state.qpos[b]
+            if s.done[b] > 0.5 or t + 1 >= LOOP_END_AT[b]:
+                end_step[b] = t + 1
+        if np.all(end_step > 0):
+            break
+    assert np.all(end_step > 0), end_step
+    assert [metrics[b]["fell"] for b in range(B)] == [1.0, 1.0, 0.0, 0.0]  # falls and record ends
+    np.testing.assert_array_equal(end_step[2:], LOOP_END_AT[2:])
+
+    np.testing.assert_array_equal(ep.length, end_step)
+    np.testing.assert_array_equal(ep.done, 1.0)
+    np.testing.assert_array_equal(ep.carry[0], end_step)  # `act` saw live exactly while live
+    # early stop: the loop ran whole chunks up to the one in which the last episode ended
+    assert int(ep.carry[1]) == -(-end_step.max() // LOOP_CHUNK) * LOOP_CHUNK < LOOP_HORIZON
+    np.testing.assert_allclose(ep.carry[2], total, rtol=1e-5, atol=1e-4)
+    for k in ep.metrics:  # frozen at each episode's last live step
+        np.testing.assert_allclose(ep.metrics[k], [metrics[b][k] for b in range(B)],
+                                   rtol=1e-5, atol=1e-4, err_msg=k)
+    np.testing.assert_allclose(ep.state.pipeline_state.qpos, np.stack(qpos), atol=1e-4)
+    assert ep.trace is None
 
 
 @pytest.mark.parametrize("method", ["detection", "com_over_feet"])
@@ -74,14 +137,14 @@ def test_table2_metrics_on_synthetic_outcomes():
            "success": np.array([1, 1, 1, 1, 1, 1, 0, 0, 0, 0.]),
            "fell": np.array([0, 0, 0, 0, 0, 0, 1, 1, 1, 0.]),
            "fail_kind": np.array([-1, -1, -1, -1, -1, -1, 1, 1, 2, -1.])}
-    row = evaluate.episode_table(res)
+    row = stats.episode_table(res)
     assert row["distance_pct"] == pytest.approx(78.0)
     assert row["success_pct"] == pytest.approx(60.0)
     assert row["fail_on"] == pytest.approx({"jumps": 0.0, "gaps": 20.0, "stairs": 10.0})
     lo, hi = row["success_ci"]
     assert lo == pytest.approx(31.27, abs=0.01) and hi == pytest.approx(83.18, abs=0.01)  # Wilson
     row.update(method="estimator")
-    md = evaluate.table2_markdown([row])
+    md = table2.table2_markdown([row])
     # Wilson intervals by hand (den 1 + 1.96^2/10 = 1.3842): 2/10 -> centre 0.2833, half 0.2266;
     # 1/10 -> 0.2110, 0.1931; 0/10 -> 0.1388, 0.1388
     assert row["fail_ci"]["gaps"] == pytest.approx([5.67, 50.98], abs=0.01)
@@ -99,7 +162,7 @@ def test_baseline_rollout_compares_like_with_like(env, multi_fn):
     the guides, the physics, and so every outcome, must agree."""
     from biped_switch import dqn
 
-    def q_first(_, x):  # evaluate.BaselineSetup's selector for the end-to-end policy
+    def q_first(_, x):  # table2.BaselineSetup's selector for the end-to-end policy
         return jnp.zeros(x.shape[:-1] + (1,))
 
     run = jax.jit(lambda rng: dqn.dqn_rollout(

@@ -1,5 +1,5 @@
 """policies.load_suite on runs in the trainer's checkpoint format: the suite's env overrides, its
-stacked deterministic actions against train.load_policy's, and the errors for policies that
+stacked deterministic actions against policies.load_policy's, and the errors for policies that
 cannot share one env or one stack."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import pytest
 
 from biped_switch import env as env_lib
 from biped_switch import policies as pol
-from biped_switch import train as train_lib
+from biped_switch.config import default_train_config
 
 from policy_runs import fake_policy_run
 
 # the train config's default env overrides (pd actions, phase clock, ...), less the backend
-PD_PHASE = {k: v for k, v in train_lib.default_train_config().env.items() if k != "backend"}
+PD_PHASE = {k: v for k, v in default_train_config().env.items() if k != "backend"}
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +43,7 @@ def test_suite_actions_are_load_policy_actions_on_any_wider_obs(suite_runs):
     plain = env_lib.make_env("mixed", n_tracks=1, **PD_PHASE)
     assert plain.observation_size == env.policy_observation_size == env.observation_size - 3
     for i, n in enumerate(pol.POLICY_NAMES):
-        act, _ = train_lib.load_policy(ckpts[n], plain)
+        act, _ = pol.load_policy(ckpts[n], plain)
         np.testing.assert_allclose(acts[i], act(obs[:, :plain.observation_size], None), atol=1e-6)
     assert not np.allclose(acts[0], acts[1])  # each policy its own parameters
 
@@ -91,8 +91,6 @@ def test_load_suite_rejects_other_networks_and_envs_without_the_overrides(tmp_pa
 def test_runs_without_env_overrides_are_refused(tmp_path):
     """A config.json with no env section (a Brax PPO run, trained with torque actions and no phase
     clock) must not pass for one of today's defaults, which run_config would fill in."""
-    import json
-
     ckpt = fake_policy_run(tmp_path, "walk")
     cfg_path = ckpt.parent.parent / "config.json"
     saved = json.loads(cfg_path.read_text())

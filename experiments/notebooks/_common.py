@@ -8,13 +8,14 @@ laid out as the package's CLIs write it (table1/, table2/, table3/, lookup/, est
 training/). Policy training runs are read from the runs root (`runs_root`, `run_roots`):
 
     RUNS = $BIPED_RUNS, else <repo>/runs (where `python -m biped_switch.train`, `make train-all`
-           and `make reproduce` write; evaluate.find_policy looks there, then in models/policies/),
+           and `make reproduce` write; runs.find_policy looks there, then in models/policies/),
            and for a pipeline-check results root models/pipeline_check (the runs it was made from)
 
 A missing input raises `MissingResult`, whose message names the command that makes it; nothing is
 skipped silently. Nothing here builds an environment, steps the simulator or compiles JAX code:
-the notebooks only read files (and the terrain generator, which is plain numpy). The tables import
-`biped_switch.evaluate` for the paper's values, which imports JAX and MuJoCo-MJX.
+the notebooks only read files (and the terrain generator, which is plain numpy). The paper's values
+come from `biped_switch.paper` (plain numbers); the figures and run checks import the modules that
+made them (fig5, table2, runs), which import JAX and MuJoCo-MJX.
 """
 
 from __future__ import annotations
@@ -49,10 +50,13 @@ PIPELINE_MODELS = REPO / "models" / "pipeline_check"  # the pipeline check's run
 if str(REPO) not in sys.path:  # biped_switch importable even without `pip install -e .`
     sys.path.insert(0, str(REPO))
 
-PAPER_TRIALS = {"table1": 500, "table2": 2500}  # trials per row in the paper
-PAPER_SWEEP_POINTS = 100_000  # switch-sweep data points per target in the paper
-PAPER_ARTIFACTS = 7  # artifacts per test track in the paper
-PAPER_TABLE3 = {"dqn": 25.0, "end_to_end": 34.0, "ours": 20.0}  # hours (Tidd et al., Table III)
+from biped_switch.paper import ARTIFACTS as PAPER_ARTIFACTS  # noqa: E402  (the paper's numbers)
+from biped_switch.paper import SWEEP_POINTS as PAPER_SWEEP_POINTS  # noqa: E402
+from biped_switch.paper import TABLE1 as PAPER_TABLE1  # noqa: E402
+from biped_switch.paper import TABLE2 as PAPER_TABLE2  # noqa: E402
+from biped_switch.paper import TABLE3_H as PAPER_TABLE3  # noqa: E402
+from biped_switch.paper import TRIALS as PAPER_TRIALS  # noqa: E402
+
 METHOD_LABELS = {"random": "Random", "detection": "On detection", "lookup": "Lookup table",
                  "com_over_feet": "CoM over feet", "estimator": "Ours (estimator)",
                  "estimator_no_overlap": "Ours no overlap", "dqn": "*DQN",
@@ -202,7 +206,7 @@ def estimator_command(results: pathlib.Path, init: str = "stand") -> list[str]:
 
 def train_command(runs=None, policy: str = "walk", init: str = "stand") -> list[str]:
     """Training of one policy into <runs>/<policy>_<init> (default `runs_root()`: runs/, where
-    evaluate.find_policy looks; a rerun resumes from the run's latest checkpoint)."""
+    runs.find_policy looks; a rerun resumes from the run's latest checkpoint)."""
     runs = runs_root() if runs is None else pathlib.Path(runs)
     return ["-m", "biped_switch.train", "--policy", policy, "--init", init, "--out", rel(runs)]
 
@@ -393,8 +397,6 @@ def _ci(v, ci) -> str:
 
 
 def table1_rows(doc: dict):
-    from biped_switch.evaluate import PAPER_TABLE1
-
     headers = ["policy", "init", "trials", "% dist. (95% CI)", "paper % dist.",
                "% success (95% CI)", "paper % success", "% fell", "trained steps", "curriculum"]
     rows = []
@@ -411,8 +413,6 @@ def table1_rows(doc: dict):
 
 
 def table2_rows(doc: dict, with_paper_only: bool = True):
-    from biped_switch.evaluate import PAPER_TABLE2
-
     headers = ["method", "init", "trials", "% dist. (95% CI)", "% success (95% CI)", "% gap fail",
                "% jump fail", "% stair fail", "switches/trial",
                "paper dist. / success / gap / jump / stair"]
@@ -471,7 +471,7 @@ def table3_checks(doc: dict, results, runs=None) -> tuple[pathlib.Path, dict]:
 
     A row's notes are its recorded `status` when the file has one for it (retrain-cost writes it;
     "not measured" does not count), else the `run_notes` of the runs behind its measured parts, found again as retrain-cost finds them
-    (evaluate.find_policy / find_dqn) under the file's recorded runs root, else `runs`, else
+    (runs.find_policy / find_dqn) under the file's recorded runs root, else `runs`, else
     `runs_root(results)`. Sweep and estimator hours of a pipeline-check results root, or of
     sweeps smaller than the paper's, are noted too."""
     results = pathlib.Path(results)
@@ -480,7 +480,7 @@ def table3_checks(doc: dict, results, runs=None) -> tuple[pathlib.Path, dict]:
         runs = _repo_path(doc["runs"])
     else:
         runs = runs_root(results) if runs is None else pathlib.Path(runs)
-    from biped_switch.evaluate import find_dqn, find_policy
+    from biped_switch.runs import find_dqn, find_policy
 
     pols = [_run_dir(find_policy(k, init, runs)) for k in ("jumps", "gaps", "stairs")]
     deps = {"new policy": pols, "selector": [find_dqn(runs, init)],
@@ -593,8 +593,6 @@ def bars_ours_vs_paper(ax, labels, ours, ours_ci, paper, ylabel, title):
 
 
 def plot_table1(doc: dict, title: str = ""):
-    from biped_switch.evaluate import PAPER_TABLE1
-
     plt = _plt()
     rows = doc["rows"]
     labels = [f"{r['policy']}/{r['init']}" for r in rows]
@@ -617,8 +615,6 @@ def plot_table1(doc: dict, title: str = ""):
 
 def plot_table2(doc: dict, title: str = ""):
     """Distance, success and per-artifact failure rates of every method, ours beside the paper's."""
-    from biped_switch.evaluate import PAPER_TABLE2
-
     plt = _plt()
     ours = {r["method"]: r for r in doc["rows"]}
     methods = list(ours) + [m for m in PAPER_TABLE2 if m not in ours]
@@ -661,7 +657,7 @@ def plot_table2(doc: dict, title: str = ""):
 def _wilson_pct(pct, n):
     if n <= 0 or not np.isfinite(pct):
         return None
-    from biped_switch.evaluate import wilson_ci
+    from biped_switch.stats import wilson_ci
 
     lo, hi = wilson_ci(pct / 100.0 * n, n)
     return [100 * lo, 100 * hi]
@@ -793,15 +789,15 @@ def load_trial(path) -> dict:
 
 
 def trial_track(track_seed: int, n_artifacts: int | None = None):
-    """The `mixed` track of a Table II trial (evaluate.mixed_track): `n_artifacts` per track as
+    """The `mixed` track of a Table II trial (table2.mixed_track): `n_artifacts` per track as
     recorded in the run's settings (None: the default 7)."""
-    from biped_switch.evaluate import mixed_track
+    from biped_switch.table2 import mixed_track
 
     return mixed_track(track_seed, 7 if n_artifacts is None else n_artifacts)
 
 
 def trial_length(rec: dict) -> int:
-    from biped_switch.evaluate import trial_length as f
+    from biped_switch.fig5 import trial_length as f
 
     return f(rec)
 
@@ -829,15 +825,15 @@ def trial_events(rec: dict):
 
 
 def trial_outcome(rec: dict) -> str:
-    from biped_switch.evaluate import trial_outcome as f
+    from biped_switch.fig5 import trial_outcome as f
 
     return f(rec)
 
 
 def plot_fig5(rec: dict, track, title: str = "", threshold: float | None = None):
-    """The paper's Fig. 5 (`biped_switch.evaluate.fig5_figure`, which the CLI and demo save)."""
+    """The paper's Fig. 5 (`biped_switch.fig5.fig5_figure`, which the CLI and demo save)."""
     _plt()
-    from biped_switch.evaluate import fig5_figure
+    from biped_switch.fig5 import fig5_figure
 
     return fig5_figure(rec, track, title, threshold)
 
@@ -878,8 +874,8 @@ def _read_json(path) -> dict:
 
 
 def run_notes(run_dir) -> list[str]:
-    """evaluate.run_notes: why a run is not a finished, real training run ([] if nothing says so)."""
-    from biped_switch.evaluate import run_notes as f
+    """runs.run_notes: why a run is not a finished, real training run ([] if nothing says so)."""
+    from biped_switch.runs import run_notes as f
 
     return f(run_dir)
 
@@ -950,7 +946,7 @@ def plot_training_overview(runs: Sequence[pathlib.Path]):
 
 
 def plot_training_run(run_dir: pathlib.Path):
-    """train.plot_curves, inline: episode reward and length, eval reward per step, curriculum."""
+    """runs.plot_curves, inline: episode reward and length, eval reward per step, curriculum."""
     plt = _plt()
     m = read_csv(run_dir / "metrics.csv")
     fig, axes = plt.subplots(1, 3, figsize=(16, 3.6))

@@ -1,0 +1,130 @@
+"""Fig. 5 of the paper: one trial of a switching method over time (`evaluate multi --fig5-trial`).
+
+`trace_trial` records every control step of one trial of a Table II set-up (table2.MultiSetup):
+the estimators' outputs, the detections, the switches, the active policy, the CoM and feet;
+`fig5_figure` draws it (one drawing for the CLI, the demo and the notebook), `plot_trial` saves it.
+"""
+
+from __future__ import annotations
+
+import functools
+import pathlib
+
+import jax
+import numpy as np
+
+from biped_switch import switching as sw
+from biped_switch.config import default_switching_config
+from biped_switch.policies import POLICY_NAMES
+from biped_switch.terrain import ARTIFACT_KINDS
+
+
+def trace_trial(setup, method: str, trial: int, seed: int) -> dict:
+    """Per-step record of trial `trial` of a table2.MultiSetup (Fig. 5). A stand-init reset on a
+    given track uses no randomness, so this is the trial of the table; a random-init trace draws
+    its own start joints (key seed + trial), and the `random` rule its own distances."""
+    rules = sw.make_rules(method, lookup_m=setup.lookup_m)
+    f = jax.jit(functools.partial(sw.trace_rollout, setup.env, setup.suite.apply,
+                                  est_apply=setup.est_apply, horizon=setup.horizon,
+                                  guide_scale=setup.guide_scale))
+    rec = jax.device_get(f(suite_params=setup.suite.params, est_params=setup.est_params,
+                           rules=rules, rng=jax.random.PRNGKey(seed + trial), track_id=trial))
+    return {k: np.asarray(v) for k, v in rec.items()}
+
+
+def trial_length(rec: dict) -> int:
+    live = np.flatnonzero(np.asarray(rec["ended"]) < 0.5)
+    return int(live[-1]) + 1 if len(live) else 1
+
+
+def trial_outcome(rec: dict) -> str:
+    n = trial_length(rec)
+    if rec["success"][:n].max() > 0.5:
+        return "success"
+    return "fell" if rec["fell"][:n].max() > 0.5 else "time limit"
+
+
+def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = None):
+    """The paper's Fig. 5 (one drawing for the CLI, the demo and the notebook): estimator outputs
+    while an artifact is detected (green lines: detections, red: switches), the active policy, and
+    the terrain under the CoM with foot and CoM heights, the periods with the CoM over the feet
+    shaded."""
+    # lazy: matplotlib loads slowly and only the drawing needs it; pyplot must come after the
+    # caller has chosen a backend (plot_trial: Agg; a notebook: inline)
+    import matplotlib.pyplot as plt
+
+    if threshold is None:  # the estimator rule's E >= threshold
+        threshold = float(default_switching_config().estimator_threshold)
+
+    n = trial_length(rec)
+    t = np.arange(n)
+    kind = rec["det_kind"][:n].astype(int)
+    fig, (ax0, axp, ax1) = plt.subplots(3, 1, figsize=(13, 7.5), sharex=True,
+                                        gridspec_kw={"height_ratios": [3, 0.6, 3]})
+    colours = {"walk": "tab:blue", "jumps": "tab:orange", "gaps": "tab:purple", "stairs": "tab:brown"}
+    for k, name in enumerate(ARTIFACT_KINDS):
+        p = rec["est_probs"][:n, k]
+        ax0.plot(t, p, color=colours[name], lw=0.5, alpha=0.25)
+        ax0.plot(t, np.where(kind == k, p, np.nan), color=colours[name], lw=1.5, label=f"E_{name}")
+    new_det = np.flatnonzero((kind >= 0) & (np.r_[-1, kind[:-1]] != kind))
+    switches = np.flatnonzero(rec["switched"][:n] > 0.5)
+    for ax in (ax0, axp, ax1):
+        for i in new_det:
+            ax.axvline(i, color="g", lw=1)
+        for i in switches:
+            ax.axvline(i, color="r", lw=1)
+    ax0.axhline(threshold, color="k", ls=":", lw=0.8, label=f"threshold {threshold:g}")
+    ax0.set_ylabel("switch estimate E_i(s)")
+    ax0.set_ylim(-0.02, 1.02)
+    ax0.legend(fontsize=8, loc="lower right", ncol=4)
+    ax0.set_title("thick: the detected artifact's estimator; faint: every estimator at every step",
+                  fontsize=8)
+    # active policy strip
+    active = rec["active"][:n].astype(int)
+    for j, name in enumerate(POLICY_NAMES):
+        on = active == j
+        if on.any():
+            axp.fill_between(t, 0, 1, where=on, step="mid", color=colours[name], alpha=0.7,
+                             label=name, lw=0)
+    axp.set_yticks([])
+    axp.set_ylabel("active", fontsize=8)
+    axp.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    # terrain under the CoM, feet and CoM heights
+    boxes = track.boxes
+    x = rec["com_x_m"][:n]
+    lo, hi = boxes[:, 0] - boxes[:, 3], boxes[:, 0] + boxes[:, 3]
+    top = boxes[:, 2] + boxes[:, 5]
+    ground = np.array([np.max(np.where((lo <= xi) & (xi <= hi), top, -1.0)) for xi in x])
+    com_z = rec["body_com"][:n, 2]
+    ymin = min(-0.8, float(ground.min()) - 0.1)
+    ok = rec["com_ok"][:n] > 0.5
+    ax1.fill_between(t, ymin, com_z.max() + 0.2, where=ok, step="mid", color="gold", alpha=0.25,
+                     lw=0, label="CoM over feet")
+    ax1.fill_between(t, ymin, ground, color="pink", step="mid", label="terrain under the CoM")
+    soles_z = rec["soles"][:n, :, 2]
+    ax1.plot(t, soles_z[:, :4].mean(1), color="tab:blue", lw=1, label="left foot")
+    ax1.plot(t, soles_z[:, 4:].mean(1), color="tab:green", lw=1, label="right foot")
+    ax1.plot(t, np.where(ok, com_z, np.nan), "r.", ms=2, label="CoM (over feet)")
+    ax1.plot(t, com_z, color="r", lw=0.3)
+    ax1.set_ylim(ymin, com_z.max() + 0.2)
+    ax1.set_ylabel("height [m]")
+    ax1.set_xlabel("control step (20 ms)")
+    ax1.legend(fontsize=8, loc="upper right", ncol=5)
+    dt = float(np.median(np.diff(rec["time_s"][:n]))) if n > 1 else 0.02
+    sec = ax0.secondary_xaxis("top", functions=(lambda s: s * dt, lambda s: s / max(dt, 1e-9)))
+    sec.set_xlabel("time [s]", fontsize=8)
+    fig.suptitle(f"{title} ({trial_outcome(rec)})", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def plot_trial(rec: dict, track, path: pathlib.Path, title: str = "", threshold: float | None = None) -> None:
+    """Fig. 5 (`fig5_figure`) saved as a PNG, off screen."""
+    import matplotlib  # lazy, as in fig5_figure; the Agg backend before pyplot
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = fig5_figure(rec, track, title, threshold)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,330 @@
+"""Run folders and their checkpoints: the one module that reads and writes them.
+
+A training run (PPO: train.py; the DQN selector: dqn.py) lives in one folder:
+
+    <run>/config.json                         the run's config (config.default_train_config, saved)
+    <run>/metrics.csv, <run>/tb/              one row per logged point (`Logger`)
+    <run>/checkpoints/<step:012d>/            an Orbax PyTree checkpoint (`save_tree`) ...
+    <run>/checkpoints/<step:012d>/progress.json   ... and its progress record (step, wall time,
+                                              curriculum, evaluation, device); a checkpoint
+                                              without it is unfinished and never read
+
+Runs are made under runs/<policy>_<init>/ (PPO) and runs/dqn_<init>/; their latest checkpoints are
+committed under models/policies/ (`COMMITTED_DIR`, `commit_run`) and models/baselines/
+(`BASELINE_DIR`), where a fresh clone finds them (`find_policy`, `find_dqn`) and a training run
+resumes from them (`restore_committed`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import orbax.checkpoint as ocp
+from ml_collections import config_dict
+
+from biped_switch.config import default_train_config
+from biped_switch.model import MODELS_DIR
+
+try:  # optional: TensorBoard logs (tensorboardX ships with brax)
+    from tensorboardX import SummaryWriter
+except ImportError:  # pragma: no cover
+    SummaryWriter = None
+
+COMMITTED_DIR = MODELS_DIR / "policies"  # latest checkpoint of every PPO run, committed
+BASELINE_DIR = MODELS_DIR / "baselines"  # committed DQN runs, as models/policies/ for PPO
+PROGRESS = "progress.json"
+
+
+# ----------------------------------------------------------------------- checkpoints
+def save_tree(run_dir: pathlib.Path, step: int, tree, progress: dict,
+              keep: int | None = None) -> pathlib.Path:
+    """Orbax checkpoint <run>/checkpoints/<step>/ of `tree` with progress.json beside it (the
+    layout `latest_checkpoint` finds; PPO and DQN runs alike); with `keep`, older checkpoints
+    beyond the last `keep` are removed."""
+    path = pathlib.Path(run_dir) / "checkpoints" / f"{step:012d}"
+    ocp.PyTreeCheckpointer().save(path.resolve(), tree, force=True)
+    (path / PROGRESS).write_text(json.dumps(progress, indent=2))
+    if keep is not None:
+        for old in sorted(path.parent.glob("[0-9]" * 12))[:-keep]:
+            shutil.rmtree(old, ignore_errors=True)
+    return path
+
+
+def save_ppo(run_dir: pathlib.Path, step: int, state, progress: dict, keep: int = 2) -> pathlib.Path:
+    """A PPO checkpoint of a ppo.TrainState: parameters, optimiser state, normaliser; the last
+    `keep` are kept."""
+    tree = {"params": state.params, "opt_state": state.opt_state, "norm": state.norm._asdict()}
+    return save_tree(run_dir, step, tree, progress, keep)
+
+
+def latest_checkpoint(run_dir: pathlib.Path) -> pathlib.Path | None:
+    """The run's newest finished checkpoint (one with a progress.json), or None."""
+    ckpts = sorted(p for p in (pathlib.Path(run_dir) / "checkpoints").glob("[0-9]" * 12)
+                   if (p / PROGRESS).exists())
+    return ckpts[-1] if ckpts else None
+
+
+def read_progress(ckpt: pathlib.Path) -> dict:
+    """The progress record saved beside a checkpoint."""
+    return json.loads((pathlib.Path(ckpt) / PROGRESS).read_text())
+
+
+def load_checkpoint(path: pathlib.Path, template=None):
+    """(state tree, progress dict) of a checkpoint (PPO: {params, opt_state, norm}). With
+    `template` (a ppo.TrainState), the PPO tree is restored into its structure."""
+    path = pathlib.Path(path)
+    ckptr = ocp.PyTreeCheckpointer()
+    if template is not None:
+        item = {"params": template.params, "opt_state": template.opt_state,
+                "norm": template.norm._asdict()}
+        tree = ckptr.restore(path.resolve(), item=item)
+    else:
+        tree = ckptr.restore(path.resolve())
+    return tree, read_progress(path)
+
+
+# ----------------------------------------------------------------------- a run's config
+def read_config(run_dir: pathlib.Path) -> dict:
+    """The run's config.json as saved ({} when it has none)."""
+    f = pathlib.Path(run_dir) / "config.json"
+    return json.loads(f.read_text()) if f.is_file() else {}
+
+
+def run_config(run_dir: pathlib.Path) -> config_dict.ConfigDict:
+    """The train config a PPO run was made with (its config.json over today's defaults)."""
+    saved = json.loads((pathlib.Path(run_dir) / "config.json").read_text())
+    cfg = default_train_config()
+    for section in ("env", "network", "ppo"):
+        for k, v in saved.get(section, {}).items():
+            if k in cfg[section]:
+                cfg[section][k] = tuple(v) if isinstance(v, list) else v
+    for k in ("policy", "init", "episode_length"):
+        if k in saved:
+            cfg[k] = saved[k]
+    return cfg
+
+
+def env_overrides(cfg) -> dict:
+    """Env-config overrides a run config's policy needs (action mode, phase clock); never the
+    physics backend, which is the evaluator's choice."""
+    env = dict(cfg.env)
+    env.pop("backend", None)
+    return env
+
+
+def policy_env_overrides(ckpt: pathlib.Path) -> dict:
+    """`env_overrides` of the run a checkpoint belongs to."""
+    return env_overrides(run_config(pathlib.Path(ckpt).parent.parent))
+
+
+# ----------------------------------------------------------------------- metrics.csv
+class Logger:
+    """stdout + CSV + TensorBoard; one row per logged point."""
+
+    def __init__(self, run_dir: pathlib.Path):
+        self.csv_path = pathlib.Path(run_dir) / "metrics.csv"
+        self.tb = None if SummaryWriter is None else SummaryWriter(str(pathlib.Path(run_dir) / "tb"))
+
+    def drop_after(self, step: int) -> None:
+        """On resume: forget CSV rows of an abandoned chunk (steps past the checkpoint)."""
+        if not self.csv_path.exists():
+            return
+        with self.csv_path.open() as f:
+            reader = csv.DictReader(f)
+            fields, rows = reader.fieldnames, [r for r in reader if float(r["step"]) <= step]
+        with self.csv_path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields)
+            w.writeheader()
+            w.writerows(rows)
+
+    def log(self, step: int, row: dict) -> None:
+        row = {"step": step, **{k: (round(v, 5) if isinstance(v, float) else v) for k, v in row.items()}}
+        new = not self.csv_path.exists()
+        fields = list(row)
+        if not new:
+            with self.csv_path.open() as f:
+                fields = next(csv.reader(f))
+            fields += [k for k in row if k not in fields]
+        rows = [] if new else list(csv.DictReader(self.csv_path.open()))
+        with self.csv_path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fields)
+            w.writeheader()
+            w.writerows(rows + [row])
+        if self.tb is not None:
+            for k, v in row.items():
+                if isinstance(v, (int, float)) and k != "step":
+                    self.tb.add_scalar(k, v, step)
+            self.tb.flush()
+
+
+def curve_series(rows: list[dict], key: str) -> np.ndarray:
+    """(N, 2) (step, value) of `key` over metrics.csv rows. A row logged again after a restart
+    supersedes the older rows from its step on, so the curve never runs backwards."""
+    pts = []
+    for r in rows:
+        if r.get(key) not in (None, ""):
+            step = float(r["step"])
+            pts = [pt for pt in pts if pt[0] < step] + [(step, float(r[key]))]
+    return np.array(pts).reshape(-1, 2)
+
+
+def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
+    """Training curves of a run (metrics.csv): episode reward and length, eval reward per step,
+    curriculum values, against environment steps."""
+    # lazy: matplotlib loads slowly and only the plots need it; the backend is chosen before pyplot
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader((pathlib.Path(run_dir) / "metrics.csv").open()))
+    # rows of a window in which no episode ended carry no episode statistics (runs of before
+    # 2026-12-01 logged zeros there; an ended episode lasts at least one step)
+    ep_rows = [r for r in rows if float(r.get("episode/length") or 0.0) > 0.0]
+
+    def series(key):
+        return curve_series(ep_rows if key.startswith("episode/") else rows, key)
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
+    for key, ax in (("episode/sum_reward", axes[0]), ("episode/length", axes[0].twinx())):
+        xy = series(key)
+        ax.plot(xy[:, 0], xy[:, 1], "-" if "reward" in key else ":", label=key)
+        ax.set_ylabel(key)
+    axes[0].set_title("training episodes")
+    xy = series("eval/reward_per_step")
+    axes[1].plot(xy[:, 0], xy[:, 1], "o-", label="reward per step")
+    axes[1].set_ylabel("reward per step")
+    fell_ax = axes[1].twinx()
+    xy = series("eval/fell")
+    fell_ax.plot(xy[:, 0], xy[:, 1], "r.:", label="fell")
+    fell_ax.set_ylabel("fraction fell", color="r")
+    fell_ax.set_ylim(-0.02, 1.02)
+    axes[1].set_title("milestone rollout (5 s, current curriculum)")
+    for key in ("difficulty", "guide_scale", "push_scale"):  # logged with every epoch
+        xy = series(key)
+        axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)
+    axes[2].set_title("curriculum")
+    axes[2].legend(fontsize=8)
+    for ax in axes:
+        ax.set_xlabel("environment steps")
+    fig.suptitle(str(run_dir))
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------- committed runs
+def restore_committed(run_dir: pathlib.Path, print_fn=print) -> None:
+    """A run absent from runs/ resumes from its committed copy under models/policies/."""
+    committed = COMMITTED_DIR / run_dir.name
+    if latest_checkpoint(run_dir) is None and latest_checkpoint(committed) is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for item in committed.iterdir():
+            dst = run_dir / item.name
+            if item.is_dir():
+                shutil.copytree(item, dst, dirs_exist_ok=True)
+            else:
+                shutil.copy2(item, dst)
+        print_fn(f"no checkpoint under {run_dir}: resuming from the committed {committed}")
+
+
+def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None) -> pathlib.Path:
+    """Copies a run's latest checkpoint, config, metrics and curves to models/policies/<run>/
+    (only the latest checkpoint), for a later session or a fresh clone to resume from."""
+    out = out_dir or COMMITTED_DIR / run_dir.name
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is None:
+        raise FileNotFoundError(f"no checkpoint under {run_dir}")
+    if out.exists():
+        shutil.rmtree(out / "checkpoints", ignore_errors=True)
+    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    shutil.copytree(ckpt, out / "checkpoints" / ckpt.name)
+    for name in ("config.json", "metrics.csv", "train.log"):
+        if (run_dir / name).exists():
+            shutil.copy2(run_dir / name, out / name)
+    if (run_dir / "metrics.csv").exists():
+        plot_curves(run_dir, out / "curves.png")
+    return out
+
+
+def find_policy(policy: str, init: str, runs: pathlib.Path) -> pathlib.Path | None:
+    """The latest checkpoint of <runs>/<policy>_<init>, else of its committed copy under
+    models/policies/, else None."""
+    for base in (pathlib.Path(runs), COMMITTED_DIR):
+        ckpt = latest_checkpoint(base / f"{policy}_{init}")
+        if ckpt is not None:
+            return ckpt
+    return None
+
+
+def resolve_checkpoint(spec: str, runs: pathlib.Path = pathlib.Path("runs")) -> pathlib.Path:
+    """A checkpoint named by `spec`: a checkpoint folder, a run folder (its latest checkpoint), or
+    a run name such as `walk_stand` (<runs>/<name>, else its committed copy)."""
+    path = pathlib.Path(spec)
+    if (path / "progress.json").is_file():
+        return path
+    for run_dir in (path, pathlib.Path(runs) / spec, COMMITTED_DIR / spec):
+        ckpt = latest_checkpoint(run_dir)
+        if ckpt is not None:
+            return ckpt
+    raise FileNotFoundError(f"no checkpoint for {spec!r}: not a checkpoint folder, and no run of "
+                            f"that name under {runs}/ or {COMMITTED_DIR}/")
+
+
+def find_dqn(runs, init: str = "stand", dqn_dir=None) -> pathlib.Path | None:
+    """The DQN run directory with a checkpoint: `dqn_dir` if given, else <runs>/dqn_<init>, then
+    models/baselines/dqn_<init> (find_policy's search, for the selector)."""
+    dirs = [dqn_dir] if dqn_dir else [pathlib.Path(runs) / f"dqn_{init}", BASELINE_DIR / f"dqn_{init}"]
+    return next((pathlib.Path(d) for d in dirs if latest_checkpoint(pathlib.Path(d)) is not None),
+                None)
+
+
+# ----------------------------------------------------------------------- what a run is
+def run_notes(run_dir) -> list[str]:
+    """Why a training run (PPO or DQN) is not a finished, real one; [] when nothing says so.
+
+    It lies in a pipeline_check folder; its latest checkpoint is short of the step goal
+    (progress.json's total_steps / total_env_steps, else config.json's); its curriculum is
+    unfinished (guide forces on or difficulty below 1: progress.json's, else the last logged in
+    metrics.csv, for folders of copied logs); a DQN selector chose among stand-in policies."""
+    d = pathlib.Path(run_dir)
+    notes = ["is a pipeline check"] if "pipeline_check" in d.resolve().parts else []
+    ck = latest_checkpoint(d)
+    prog = read_progress(ck) if ck else {}
+    cfg = read_config(d)
+    total = next((v for v in (prog.get("total_steps"), prog.get("total_env_steps"),
+                              cfg.get("total_timesteps"), cfg.get("total_env_steps")) if v), None)
+    if "step" in prog and total is not None and int(prog["step"]) < int(total):
+        notes.append(f"at step {int(prog['step']):,} of {int(total):,}")
+    c = prog.get("curriculum")
+    if c is None and (d / "metrics.csv").is_file():
+        rows = list(csv.DictReader((d / "metrics.csv").open()))
+        last = {k: curve_series(rows, k)[-1:, 1] for k in ("difficulty", "guide_scale")}
+        if all(len(v) for v in last.values()):
+            c = {"stage_name": "last logged", **{k: float(v[0]) for k, v in last.items()}}
+    if c is not None and (c["guide_scale"] > 1e-6 or c["difficulty"] < 1 - 1e-6):
+        notes.append(f"curriculum unfinished ({c['stage_name']} d={c['difficulty']:.1f} "
+                     f"guide={c['guide_scale']:.1f})")
+    elif "curriculum_done" in prog and not prog["curriculum_done"]:  # PPO runs since 2026-12-01
+        notes.append(f"push stage unfinished (push={c['push_scale']:.1f})")
+    stand_in = prog.get("stand_in") or any("stand-in" in str(p) for p in prog.get("policies") or ())
+    if stand_in:
+        notes.append(f"chose among stand-ins ({prog.get('stand_in') or 'see progress.json'})")
+    return notes
+
+
+def run_record(ckpt: pathlib.Path | None) -> dict | None:
+    """What a run's latest checkpoint recorded (Table III): wall time, device, step, and the
+    reasons (`run_notes`, prefixed with the run's name) its hours are not those of a finished,
+    real training run."""
+    if ckpt is None:
+        return None
+    prog = read_progress(ckpt)
+    run = ckpt.parent.parent
+    return {"wall_s": float(prog["wall_s"]), "step": int(prog.get("step", 0)),
+            "notes": [f"{run.name} {n}" for n in run_notes(run)],
+            "device": f"{prog.get('device', '?')} x{prog.get('n_devices', 1)}"}

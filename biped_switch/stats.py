@@ -1,0 +1,61 @@
+"""Statistics of evaluation episodes: 95% confidence intervals and the per-table episode summary.
+
+`episode_table` turns per-episode rollout results (the final env metrics: progress_frac, success,
+fell, fail_kind) into the % distance, % success and % failing per artifact kind, each with its 95%
+interval (normal interval of the mean for distance, Wilson score interval for proportions), as
+Tables I and II report them; `dist_success_cells` writes them as Markdown cells.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from biped_switch.terrain import ARTIFACT_KINDS
+
+
+def wilson_ci(successes: float, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a proportion (fractions in [0, 1])."""
+    if n <= 0:
+        return (math.nan, math.nan)
+    p = successes / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def mean_ci(x: np.ndarray, z: float = 1.96) -> tuple[float, float, float]:
+    """Mean and its 95% normal interval."""
+    x = np.asarray(x, float)
+    m = float(x.mean())
+    half = z * float(x.std(ddof=1)) / math.sqrt(len(x)) if len(x) > 1 else math.nan
+    return m, m - half, m + half
+
+
+def episode_table(result: dict) -> dict:
+    """% distance and % success (with CIs) from per-episode rollout results, and the % of
+    episodes failing on each artifact kind (`fail_kind`: the kind's code, -1 for none)."""
+    dist = 100.0 * np.asarray(result["progress_frac"])
+    succ = np.asarray(result["success"]) > 0.5
+    n = len(succ)
+    d, d_lo, d_hi = mean_ci(dist)
+    s_lo, s_hi = wilson_ci(float(succ.sum()), n)
+    fail = np.asarray(result["fail_kind"])
+    return {"n": n, "distance_pct": d, "distance_ci": [d_lo, d_hi],
+            "success_pct": 100.0 * succ.mean(), "success_ci": [100 * s_lo, 100 * s_hi],
+            "fell_pct": 100.0 * float((np.asarray(result["fell"]) > 0.5).mean()),
+            "fail_on": {k: 100.0 * float((fail == i).mean()) for i, k in enumerate(ARTIFACT_KINDS)},
+            "fail_ci": {k: [100 * v for v in wilson_ci(float((fail == i).sum()), n)]
+                        for i, k in enumerate(ARTIFACT_KINDS)}}
+
+
+def pct_ci(v: float, ci) -> str:
+    """A percentage and its interval as a table cell: "v (lo-hi)"."""
+    return f"{v:.1f} ({ci[0]:.1f}-{ci[1]:.1f})"
+
+
+def dist_success_cells(r: dict) -> str:
+    """The "% distance (CI) | % success (CI)" cells of a Table I or II row."""
+    return f"{pct_ci(r['distance_pct'], r['distance_ci'])} | {pct_ci(r['success_pct'], r['success_ci'])}"

@@ -1,0 +1,113 @@
+"""Table I: each behaviour policy alone on tracks of its own terrain kind (`evaluate single`).
+
+Trial i of a policy runs on the track of seed `track_seed + i` (default config.EVAL_TRACK_SEED:
+tracks training never saw), without switching, in an env made with the env overrides (action mode,
+phase clock) the policy was trained with. A row reports % of the total track distance covered
+(distance along x from the start to the finish line, capped at 100%) and % success (reached the
+finish line without falling), each with a 95% confidence interval (stats.py), and the mean
+forward speed (distance / time alive after the standing pause). The time limit, unless given,
+lets a walker at 0.6 m/s reach the farthest finish line of the tracks evaluated, with a 20%
+margin (`single_horizon_s`); each row says which limit it ran with.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import pathlib
+
+import jax
+import numpy as np
+
+from biped_switch import env as env_lib
+from biped_switch import paper
+from biped_switch import runs as runs_lib
+from biped_switch.config import EVAL_TRACK_SEED
+from biped_switch.policies import load_policy
+from biped_switch.rollout import rollout
+from biped_switch.stats import dist_success_cells, episode_table, mean_ci
+
+HORIZON_SPEED_MPS = 0.6  # Table I's acceptance speed: the derived horizon lets a walker this
+HORIZON_MARGIN = 1.2  # fast finish the longest track with this margin on the walking time
+
+
+def single_horizon_s(finish_m: float, pause_s: float, speed_mps: float = HORIZON_SPEED_MPS,
+                     margin: float = HORIZON_MARGIN) -> float:
+    """Episode time limit [s] of Table I: the standing pause, then `margin` times the time to walk
+    to the farthest finish line `finish_m` [m] (the episode starts near x = 0) at `speed_mps`."""
+    return float(np.ceil(pause_s + margin * finish_m / speed_mps))
+
+
+def speed_table(result: dict, dt_s: float, pause_s: float) -> dict:
+    """Mean forward speed [m/s] over episodes (with its 95% CI): distance / time alive after the
+    standing pause (`speed_mps`, the policy's own speed), also over successful episodes only, and
+    distance / time alive with the pause (`speed_alive_mps`)."""
+    dist = np.asarray(result["distance_m"], float)
+    alive_s = np.asarray(result["length"], float) * dt_s
+    walking = np.maximum(alive_s - pause_s, dt_s)
+    speed = dist / walking
+    succ = np.asarray(result["success"]) > 0.5
+    m, lo, hi = mean_ci(speed)
+    return {"speed_mps": m, "speed_ci": [lo, hi],
+            "speed_success_mps": float(speed[succ].mean()) if succ.any() else math.nan,
+            "speed_alive_mps": float(np.mean(dist / np.maximum(alive_s, dt_s)))}
+
+
+def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, seed: int,
+                    horizon_s: float | None, batch: int, backend: str = "auto",
+                    track_seed: int | None = None) -> dict:
+    """Table I row: `trials` episodes of `policy` on its own terrain kind, trial i on track
+    `track_seed + i` (default EVAL_TRACK_SEED: tracks training never saw), in an env made with
+    the env overrides the policy was trained with. `horizon_s` None: `single_horizon_s` of the
+    farthest finish line of these tracks."""
+    track_seed = EVAL_TRACK_SEED if track_seed is None else int(track_seed)
+    overrides = runs_lib.policy_env_overrides(ckpt)
+    # difficulty 1, no guides, no pushes (the config's defaults)
+    env = env_lib.make_env(policy, init, n_tracks=trials, seed=track_seed, backend=backend,
+                           **overrides)
+    act, progress = load_policy(ckpt, env)
+    finish = jax.vmap(lambda i: env.track_arrays(i, env.cfg.difficulty)[4])(
+        jax.numpy.arange(env.bank.size))
+    finish_m = float(jax.numpy.max(finish))
+    pause_s = float(env.cfg.pause_s) if init == "stand" else 0.0
+    if horizon_s is None:
+        horizon_s = single_horizon_s(finish_m, pause_s)
+        horizon_from = (f"derived: {pause_s:g} s pause + {HORIZON_MARGIN:g} x farthest finish "
+                        f"{finish_m:.1f} m / {HORIZON_SPEED_MPS:g} m/s")
+    else:
+        horizon_from = "--horizon-s"
+    run = jax.jit(functools.partial(rollout, env, act, n_envs=batch,
+                                    horizon=int(round(horizon_s / env.dt))))
+    results = []
+    for start in range(0, trials, batch):
+        ids = jax.numpy.arange(start, start + batch) % trials
+        results.append(jax.device_get(run(jax.random.PRNGKey(seed + start), track_ids=ids)))
+    merged = {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
+    out = episode_table(merged)
+    out.update(speed_table(merged, env.dt, pause_s))
+    out.update(policy=policy, init=init, checkpoint=str(ckpt), train_step=progress["step"],
+               curriculum=progress["curriculum"], backend=env.backend, track_seed=track_seed,
+               env_overrides=overrides, horizon_s=horizon_s,
+               horizon_from=horizon_from, finish_m_max=finish_m,
+               timed_out_pct=100.0 * float((np.asarray(merged["done"]) < 0.5).mean()))
+    return out
+
+
+def table1_markdown(rows: list[dict]) -> str:
+    lines = ["| policy | init | trials | % total dist. (95% CI) | % success (95% CI) | paper dist. | "
+             "paper success | trained steps | curriculum | speed m/s (95% CI) | horizon s | "
+             "track seed | backend |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ref = paper.TABLE1.get(r["policy"])
+        pd, ps = ((ref[0], ref[1]) if r["init"] == "stand" else (ref[2], ref[3])) if ref \
+            else ("-", "-")
+        c = r["curriculum"]
+        speed = (f"{r['speed_mps']:.2f} ({r['speed_ci'][0]:.2f}-{r['speed_ci'][1]:.2f})"
+                 if "speed_mps" in r else "-")
+        horizon = f"{r['horizon_s']:g}" if r.get("horizon_s") is not None else "-"
+        lines.append(
+            f"| {r['policy']} | {r['init']} | {r['n']} | {dist_success_cells(r)} | {pd} | {ps} | "
+            f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} g={c['guide_scale']:.1f} | "
+            f"{speed} | {horizon} | {r.get('track_seed', '-')} | {r.get('backend', '-')} |")
+    return "\n".join(lines)

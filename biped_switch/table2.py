@@ -1,0 +1,232 @@
+"""Table II: the switching methods and the baselines on multi-artifact tracks (`evaluate multi`).
+
+Every method runs on the same `mixed` tracks (7 artifacts by default, no kind twice in a row,
+>= 0.9 m of flat before each; trial i on track config.MULTI_TRACK_SEED + i with rng seed + batch
+start), each trial starting with the walk policy; the switching methods differ only in when they
+switch (switching.py). The stand-init suite is used for every method but `estimator_no_overlap`,
+which uses the random-init policies and their estimators and starts from random joints with no
+pause, as they were trained. The baselines (the DQN selector, the end-to-end policy) run the same
+tracks, seeds and horizon (`BaselineSetup`). Every env runs on the chosen physics backend, with the
+env overrides its policy suite was trained with. A row reports % distance, % success and % of
+trials failing on gaps / jumps / stairs, with 95% CIs (stats.py).
+"""
+
+from __future__ import annotations
+
+import pathlib
+import time
+import warnings
+
+import jax
+import numpy as np
+
+from biped_switch import dqn as dqn_lib
+from biped_switch import env as env_lib
+from biped_switch import estimator as est_lib
+from biped_switch import paper
+from biped_switch import policies as pol
+from biped_switch import runs as runs_lib
+from biped_switch import sweep
+from biped_switch import switching as sw
+from biped_switch import terrain
+from biped_switch.config import MULTI_TRACK_SEED, default_terrain_config
+from biped_switch.rollout import over_devices
+from biped_switch.stats import dist_success_cells, episode_table, pct_ci
+
+SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
+                  "estimator_no_overlap")
+BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain (issue 5)
+MULTI_METHODS = SWITCH_METHODS + BASELINES
+
+
+def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
+                      stand_in: str | None = None) -> tuple[list, list]:
+    """(methods whose trained parts exist, ["method: what is missing", ...])."""
+    runs, ok, skipped = pathlib.Path(runs), [], []
+    for m in methods:
+        init = "random" if m == "estimator_no_overlap" else "stand"
+        first = stand_in or "walk"
+        if m == "end_to_end":
+            if runs_lib.find_policy("mixed", "stand", runs) is None:
+                skipped.append(f"{m}: no end-to-end policy (python -m biped_switch.train --policy mixed)")
+                continue
+        elif (runs_lib.find_policy("walk", init, runs) is None
+              and runs_lib.find_policy(first, init, runs) is None):
+            skipped.append(f"{m}: no {init}-init walk policy under {runs}/ or models/policies/")
+            continue
+        if m.startswith("estimator") and not all(
+                (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
+            skipped.append(f"{m}: no {init}-init estimators in {est_dir} (make train-estimators)")
+            continue
+        if m == "lookup" and not (pathlib.Path(lookup_dir) / "lookup_stand.json").exists():
+            skipped.append(f"{m}: no lookup table in {lookup_dir} (python -m biped_switch.sweep)")
+            continue
+        if m == "dqn" and runs_lib.find_dqn(runs, "stand", dqn_dir) is None:
+            skipped.append(f"{m}: no DQN checkpoint in {dqn_dir or f'{runs}/dqn_stand'} or "
+                           f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
+            continue
+        ok.append(m)
+    return ok, skipped
+
+
+def _run_batches(run, trials: int, batch: int, seed: int) -> dict:
+    """`run(rng, track_ids)` over trials in batches; trial i is track i, rng = seed + batch start."""
+    results = []
+    for start in range(0, trials, batch):
+        ids = jax.numpy.arange(start, start + batch, dtype=jax.numpy.int32) % trials
+        results.append(jax.device_get(run(jax.random.PRNGKey(seed + start), ids)))
+    return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
+
+
+def multi_env(init: str, trials: int, n_artifacts: int = 7, **overrides):
+    """Table II's env (`env.make_env`): `mixed` tracks MULTI_TRACK_SEED + i (trial i),
+    `n_artifacts` per track; `overrides` (env config: the physics `backend`, the suite's action
+    mode and phase clock, ...) go to `env.make_env`."""
+    return env_lib.make_env("mixed", init, n_artifacts=n_artifacts, n_tracks=trials,
+                            seed=MULTI_TRACK_SEED, **overrides)
+
+
+def mixed_track(seed: int, n_artifacts: int = 7):
+    """The terrain.Track of seed `seed` as multi_env lays it out (trial i: MULTI_TRACK_SEED + i)."""
+    return terrain.generate_track(int(seed), "mixed", 1.0, default_terrain_config(n_artifacts))
+
+
+def trial_track(setup, trial: int):
+    """The terrain.Track of a trial of `setup` (for plots)."""
+    return mixed_track(MULTI_TRACK_SEED + trial, setup.env.terrain_cfg.n_artifacts)
+
+
+class MultiSetup:
+    """Env, policy suite, estimators and lookup table of one init mode, and its compiled rollout."""
+
+    def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
+                 est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
+                 guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto"):
+        self.init = init
+        self.env = multi_env(init, trials, n_artifacts, backend=backend,
+                             **pol.suite_env_overrides(init, runs, stand_in=stand_in))
+        self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in)
+        self.est_apply, self.est_params, self.est_meta = None, None, None
+        if need_estimators:
+            self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
+            self.est_apply = est_lib.predict
+        self.lookup_m = sweep.load_lookup(init, lookup_dir) if need_lookup else None
+        self.horizon = int(round(horizon_s / self.env.dt))
+
+        env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon
+
+        def one(suite_params, est_params, rules, rng, ids):
+            return sw.multi_rollout(env, apply, suite_params, est_apply, est_params, rules, rng,
+                                    ids.shape[0], horizon, track_ids=ids, guide_scale=guide_scale)
+
+        self.run = over_devices(one, n_shared=3)
+        self.batch = batch
+        self.guide_scale = guide_scale
+
+    def evaluate(self, method: str, trials: int, seed: int) -> dict:
+        rules = sw.make_rules(method, lookup_m=self.lookup_m)
+        return _run_batches(lambda rng, ids: self.run(self.suite.params, self.est_params, rules,
+                                                      rng, ids), trials, self.batch, seed)
+
+
+class BaselineSetup:
+    """The DQN selector or the end-to-end policy on MultiSetup's tracks, seeds and horizon.
+
+    Both run `dqn.dqn_rollout` (same resets, chunks, early stop and frozen metrics as
+    `switching.multi_rollout`); the end-to-end policy is a one-policy suite whose "selector"
+    always picks it."""
+
+    def __init__(self, method: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
+                 dqn_dir=None, guide_scale: float = 0.0, n_artifacts: int = 7,
+                 backend: str = "auto"):
+        if method not in BASELINES:
+            raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
+        if method == "dqn":
+            run_dir = runs_lib.find_dqn(runs, "stand", dqn_dir)
+            if run_dir is None:
+                raise FileNotFoundError(f"no stand-init DQN checkpoint under {dqn_dir or runs}/ or "
+                                        f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
+            self.env = multi_env("stand", trials, n_artifacts, detector_one_hot=True,
+                                 backend=backend,
+                                 **pol.suite_env_overrides("stand", runs, stand_in=stand_in))
+            self.suite = pol.load_suite("stand", self.env, runs, stand_in=stand_in)
+            q_apply, self.q_params = dqn_lib.load_dqn(run_dir, dqn_lib.q_input_size(self.env))
+            ckpt = runs_lib.latest_checkpoint(run_dir)
+            self.sources = self.suite.sources + (f"selector: {ckpt}",)
+            trained_with = runs_lib.read_progress(ckpt).get("policies")
+            if trained_with is not None and list(trained_with) != list(self.suite.sources):
+                # a selector's Q-values are only meaningful for the policies it chose among
+                warnings.warn(f"the DQN selector {ckpt} was trained with the policies {trained_with}, "
+                              f"not the ones evaluated now {list(self.suite.sources)}; retrain it "
+                              f"(make train-dqn) for a Table II row", stacklevel=2)
+                self.sources += (f"MISMATCH: selector trained with {trained_with}",)
+        else:
+            self.env = multi_env("stand", trials, n_artifacts, backend=backend,
+                                 **pol.suite_env_overrides("stand", runs, names=("mixed",)))
+            self.suite = pol.load_suite("stand", self.env, runs, names=("mixed",))
+            self.q_params = jax.numpy.zeros(())
+
+            def q_apply(_, x):  # the only policy of the suite, always
+                return jax.numpy.zeros(x.shape[:-1] + (1,))
+            self.sources = self.suite.sources
+        env, apply, horizon = self.env, self.suite.apply, int(round(horizon_s / self.env.dt))
+
+        def one(suite_params, q_params, rng, ids):
+            return dqn_lib.dqn_rollout(env, apply, suite_params, q_apply, q_params, rng,
+                                       ids.shape[0], horizon, track_ids=ids, guide_scale=guide_scale)
+
+        self.run = over_devices(one, n_shared=2)
+        self.batch = batch
+
+    def evaluate(self, trials: int, seed: int) -> dict:
+        return _run_batches(lambda rng, ids: self.run(self.suite.params, self.q_params, rng, ids),
+                            trials, self.batch, seed)
+
+
+def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
+                   stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
+                   print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
+                   n_artifacts: int = 7, backend: str = "auto") -> tuple[list, dict]:
+    """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
+    and per baseline ("dqn", "end_to_end"), every env on the physics `backend` with its policies'
+    env overrides. `wall_s` of a row includes its setup and compiles."""
+    setups, rows = {}, []
+    for method in methods:
+        t0 = time.perf_counter()
+        init = "random" if method == "estimator_no_overlap" else "stand"
+        if method in BASELINES:
+            setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
+                                           guide_scale, n_artifacts, backend)
+            merged, sources = setups[method].evaluate(trials, seed), setups[method].sources
+        else:
+            if init not in setups:
+                need_est = ("estimator_no_overlap" if init == "random" else "estimator") in methods
+                setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
+                                          lookup_dir, need_est,
+                                          "lookup" in methods and init == "stand", guide_scale,
+                                          n_artifacts, backend)
+            rule = "estimator" if method == "estimator_no_overlap" else method
+            merged, sources = setups[init].evaluate(rule, trials, seed), setups[init].suite.sources
+        row = episode_table(merged)
+        env = setups[method if method in BASELINES else init].env
+        row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
+                   switches_per_trial=float(np.mean(merged["n_switches"])),
+                   policies=list(sources), backend=env.backend)
+        rows.append(row)
+        print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
+                 f"  ({row['wall_s']:.0f} s)")
+    return rows, setups
+
+
+def table2_markdown(rows: list[dict]) -> str:
+    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail (CI) | "
+             "% jump fail (CI) | % stair fail (CI) | paper (dist. / success / gap / jump / stair) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ref = paper.TABLE2.get(r["method"])
+        f = r["fail_on"]
+        lines.append(
+            f"| {r['method']} | {r['n']} | {dist_success_cells(r)} | "
+            + " | ".join(pct_ci(f[k], r["fail_ci"][k]) for k in paper.TABLE2_FAIL_ORDER) + " | "
+            + (" / ".join(f"{v}" for v in ref) if ref else "-") + " |")
+    return "\n".join(lines)
