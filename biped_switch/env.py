@@ -341,10 +341,7 @@ class BipedEnv(Env):
         info["time_s"] = info["time_s"] + self.dt
         obs, feat = self._observe(data, info, contact, prev=info["contact_prev"])
         info["contact_prev"] = contact
-        cfg = self.cfg
-        fell = ((feat["com_height"] < cfg.fall_height_m) | (jnp.abs(feat["pitch"]) > cfg.fall_tilt_rad)
-                | (jnp.abs(feat["roll"]) > cfg.fall_tilt_rad) | (feat["com"][2] < FALL_Z_M)
-                | diverged)
+        fell = self._fell(feat, diverged)
         success = (feat["com"][0] >= info["finish_x"]) & ~fell
         reward, terms = self._reward(feat, data.ctrl, fell, paused)
         done = (fell | success).astype(jnp.float32)
@@ -454,6 +451,14 @@ class BipedEnv(Env):
         seen = valid & (dist <= self.cfg.detect_range_m)
         return {"index": jnp.where(valid, nxt, -1), "kind": jnp.where(seen, info["art_kind"][nxt], -1),
                 "dist_m": jnp.where(valid, dist, jnp.inf)}
+
+    def _fell(self, feat, diverged):
+        """Termination as a fall: pelvis CoM too low above the terrain, tilted too far, below the
+        world, or the simulation diverged."""
+        c = self.cfg
+        return ((feat["com_height"] < c.fall_height_m) | (jnp.abs(feat["pitch"]) > c.fall_tilt_rad)
+                | (jnp.abs(feat["roll"]) > c.fall_tilt_rad) | (feat["com"][2] < FALL_Z_M)
+                | diverged)
 
     def _reward_terms(self, feat, ctrl, fell, paused) -> dict:
         """Each weighted reward term (signed, so they sum to the reward), logged as reward/<term>."""

@@ -46,6 +46,8 @@ import orbax.checkpoint as ocp
 from flax import linen
 from flax.training import orbax_utils
 
+from biped_switch import paper
+from biped_switch import provenance as prov
 from biped_switch.config import default_env_config, default_estimator_config
 from biped_switch.env import STATE_SIZE
 from biped_switch.terrain import ARTIFACT_KINDS
@@ -392,6 +394,52 @@ def plot_history(history: dict, out_png, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
+
+
+def _read_metrics(path) -> dict:
+    p = pathlib.Path(path)
+    return json.loads(p.read_text()) if p.is_file() else {}
+
+
+def estimator_rows(ests):
+    """(headers, rows) of estimators' final metrics; `ests`: (name, metrics JSON, history CSV) as
+    the CLI writes them (<results>/estimators/<init>_<target>.json, ..._history.csv)."""
+    headers = ["estimator", "points (train / val)", "val acc", "best val acc (epoch)", "val AUC",
+               "epochs", "train s", "device", "data"]
+    rows = []
+    for name, js, _ in ests:
+        if not pathlib.Path(js).is_file():
+            rows.append([name] + ["metrics JSON missing"] + ["-"] * 7)
+            continue
+        d = _read_metrics(js)
+        m = d.get("metrics", {})
+        rows.append([name, f"{m.get('train_points', 0):,} / {m.get('val_points', 0):,}",
+                     f"{m.get('val_acc', math.nan):.3f}",
+                     f"{m.get('best_val_acc', math.nan):.3f} ({m.get('best_val_acc_epoch', '?')})",
+                     f"{m.get('val_auc', math.nan):.3f}", m.get("epochs", "?"),
+                     f"{m.get('train_s', math.nan):.0f}", m.get("device", "not recorded"),
+                     d.get("data_file", "?")])
+    return headers, rows
+
+
+def estimators_provenance(ests, print_fn=print) -> list[str]:
+    """Prints each estimator's data and checkpoint and the verdict on the amount of sweep data
+    (against the paper's points per target); returns the reasons ([] if none)."""
+    reasons, few = [], []
+    for name, js, _ in ests:
+        d = _read_metrics(js)
+        m = d.get("metrics", {})
+        print_fn(f"  {name}: data {d.get('data_file', 'not recorded')}, checkpoint "
+                 f"{d.get('checkpoint', 'not recorded')}")
+        if m.get("points_total", 0) < paper.SWEEP_POINTS:
+            few.append(f"{name} {m.get('points_total', 0):,}")
+        lab = prov.pipeline_label(d)
+        if lab:
+            reasons.append(f"{name} labelled PIPELINE_CHECK ({lab})")
+    if few:
+        reasons.append(f"sweep points {', '.join(few)} (paper: {paper.SWEEP_POINTS:,} per target)")
+    print_fn(prov.verdict(reasons))
+    return reasons
 
 
 def main(argv=None) -> int:

@@ -32,6 +32,20 @@ def trace_trial(setup, method: str, trial: int, seed: int) -> dict:
     return {k: np.asarray(v) for k, v in rec.items()}
 
 
+FIG5_KEYS = ("time_s", "com_x_m", "body_com", "soles", "contact", "det_kind", "det_dist_m",
+             "est_probs", "com_ok", "active", "switched", "ended", "fell", "success", "track_seed")
+
+
+def load_trial(path) -> dict:
+    """A trace `evaluate multi --fig5-trial` saved (fig5_trial<i>.npz), checked for FIG5_KEYS."""
+    with np.load(path) as z:
+        rec = {k: np.asarray(z[k]) for k in z.files}
+    missing = [k for k in FIG5_KEYS if k not in rec]
+    if missing:
+        raise KeyError(f"{path} lacks {missing}; rewrite it with the current evaluate multi")
+    return rec
+
+
 def trial_length(rec: dict) -> int:
     live = np.flatnonzero(np.asarray(rec["ended"]) < 0.5)
     return int(live[-1]) + 1 if len(live) else 1
@@ -42,6 +56,26 @@ def trial_outcome(rec: dict) -> str:
     if rec["success"][:n].max() > 0.5:
         return "success"
     return "fell" if rec["fell"][:n].max() > 0.5 else "time limit"
+
+
+def trial_events(rec: dict):
+    """(headers, rows) of the trial's detections and switches, in order."""
+    n = trial_length(rec)
+    kind = rec["det_kind"][:n].astype(int)
+    rows = []
+    for i in np.flatnonzero((kind >= 0) & (np.r_[-1, kind[:-1]] != kind)):
+        rows.append([int(i), f"{rec['time_s'][i]:.2f}", "detect", ARTIFACT_KINDS[kind[i]],
+                     f"{rec['det_dist_m'][i]:.2f}", "-", "-"])
+    for i in np.flatnonzero(rec["switched"][:n] > 0.5):
+        k = int(kind[i])
+        e = f"{rec['est_probs'][i, k]:.2f}" if k >= 0 else "-"
+        rows.append([int(i), f"{rec['time_s'][i]:.2f}", "switch",
+                     f"{POLICY_NAMES[int(rec['active'][i])]}",
+                     f"{rec['det_dist_m'][i]:.2f}" if k >= 0 else "-", e,
+                     "yes" if rec["com_ok"][i] > 0.5 else "no"])
+    rows.sort(key=lambda r: (r[0], r[2] == "switch"))
+    return ["step", "t [s]", "event", "kind / new policy", "distance [m]", "E_target",
+            "CoM over feet"], rows
 
 
 def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = None):

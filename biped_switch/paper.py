@@ -1,7 +1,7 @@
 """The paper's reference numbers (Tidd et al., Learning When to Switch), typed in once.
 
-Our tables print these beside our own numbers (table1.py, table2.py, table3.py) and the result
-notebooks draw them (experiments/notebooks/_common.py). Plain values only: importing this module
+Our tables print these beside our own numbers (table1.py, table2.py, table3.py, fig4b.py) and
+the result notebooks draw them (experiments/notebooks/_common.py). Plain values only: importing this module
 imports nothing else.
 """
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import pathlib
 import shutil
 
@@ -328,3 +329,47 @@ def run_record(ckpt: pathlib.Path | None) -> dict | None:
     return {"wall_s": float(prog["wall_s"]), "step": int(prog.get("step", 0)),
             "notes": [f"{run.name} {n}" for n in run_notes(run)],
             "device": f"{prog.get('device', '?')} x{prog.get('n_devices', 1)}"}
+
+
+# ----------------------------------------------------------------------- runs as the notebooks list them
+def training_rows(run_dirs, name=str):
+    """(headers, rows): per run folder, its last logged values (metrics.csv) and device (its
+    newest progress.json); `name(run_dir)` is the run's first cell."""
+    headers = ["run", "env steps", "hours", "last episode reward", "last eval reward/step",
+               "difficulty", "guide_scale", "push_scale", "device"]
+    rows = []
+    for d in map(pathlib.Path, run_dirs):
+        with (d / "metrics.csv").open(newline="") as f:
+            logged = list(csv.DictReader(f))
+
+        def last(k):
+            y = curve_series(logged, k)[:, 1]
+            y = y[np.isfinite(y)]
+            return float(y[-1]) if len(y) else math.nan
+
+        def num(v, f):
+            return "-" if not math.isfinite(v) else format(v, f)
+
+        prog = sorted(d.glob("progress*.json")) + sorted(d.glob("checkpoints/*/progress.json"))
+        try:
+            dev = json.loads(prog[-1].read_text()).get("device", "?") if prog else "not recorded"
+        except (OSError, ValueError):  # being written by a running job
+            dev = "?"
+        steps = [s for s in (_float(r.get("step")) for r in logged) if math.isfinite(s)]
+        rows.append([name(d), f"{int(max(steps)):,}" if steps else "-",
+                     num(last("wall_s") / 3600, ".2f"), num(last("episode/sum_reward"), ".1f"),
+                     num(last("eval/reward_per_step"), ".2f"), num(last("difficulty"), ".2f"),
+                     num(last("guide_scale"), ".2f"), num(last("push_scale"), ".2f"), dev])
+    return headers, rows
+
+
+def _float(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def training_checks(run_dirs, name=str) -> list[str]:
+    """Verdict reasons over run folders: "<name(run)>: <its run_notes>" for each run with notes."""
+    return [f"{name(d)}: {', '.join(n)}" for d in map(pathlib.Path, run_dirs) if (n := run_notes(d))]

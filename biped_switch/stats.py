@@ -56,6 +56,17 @@ def pct_ci(v: float, ci) -> str:
     return f"{v:.1f} ({ci[0]:.1f}-{ci[1]:.1f})"
 
 
+def pct_ci_cell(v, ci) -> str:
+    """`pct_ci` of a recorded row: the value alone when its interval is missing or not finite,
+    "-" without a value."""
+    if v is None:
+        return "-"
+    lo, hi = (ci or [math.nan, math.nan])
+    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return f"{v:.1f}"
+    return pct_ci(v, (lo, hi))
+
+
 def dist_success_cells(r: dict) -> str:
     """The "% distance (CI) | % success (CI)" cells of a Table I or II row."""
     return f"{pct_ci(r['distance_pct'], r['distance_ci'])} | {pct_ci(r['success_pct'], r['success_ci'])}"

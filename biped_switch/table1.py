@@ -21,11 +21,12 @@ import numpy as np
 
 from biped_switch import env as env_lib
 from biped_switch import paper
+from biped_switch import provenance as prov
 from biped_switch import runs as runs_lib
 from biped_switch.config import EVAL_TRACK_SEED
 from biped_switch.policies import load_policy
 from biped_switch.rollout import rollout
-from biped_switch.stats import dist_success_cells, episode_table, mean_ci
+from biped_switch.stats import dist_success_cells, episode_table, mean_ci, pct_ci_cell
 
 HORIZON_SPEED_MPS = 0.6  # Table I's acceptance speed: the derived horizon lets a walker this
 HORIZON_MARGIN = 1.2  # fast finish the longest track with this margin on the walking time
@@ -99,9 +100,7 @@ def table1_markdown(rows: list[dict]) -> str:
              "track seed | backend |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        ref = paper.TABLE1.get(r["policy"])
-        pd, ps = ((ref[0], ref[1]) if r["init"] == "stand" else (ref[2], ref[3])) if ref \
-            else ("-", "-")
+        pd, ps = paper_row(r)
         c = r["curriculum"]
         speed = (f"{r['speed_mps']:.2f} ({r['speed_ci'][0]:.2f}-{r['speed_ci'][1]:.2f})"
                  if "speed_mps" in r else "-")
@@ -111,3 +110,53 @@ def table1_markdown(rows: list[dict]) -> str:
             f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} g={c['guide_scale']:.1f} | "
             f"{speed} | {horizon} | {r.get('track_seed', '-')} | {r.get('backend', '-')} |")
     return "\n".join(lines)
+
+
+def paper_row(r: dict):
+    """The paper's (% distance, % success) of a Table I row's policy and init, ("-", "-") when the
+    paper has none."""
+    ref = paper.TABLE1.get(r["policy"])
+    return ((ref[0], ref[1]) if r["init"] == "stand" else (ref[2], ref[3])) if ref else ("-", "-")
+
+
+def table1_rows(doc: dict):
+    """(headers, rows) of a table1.json as the notebook prints it: ours beside the paper's."""
+    headers = ["policy", "init", "trials", "% dist. (95% CI)", "paper % dist.",
+               "% success (95% CI)", "paper % success", "% fell", "trained steps", "curriculum"]
+    rows = []
+    for r in doc["rows"]:
+        pd, ps = paper_row(r)
+        c = r.get("curriculum") or {}
+        rows.append([r["policy"], r["init"], r["n"], pct_ci_cell(r["distance_pct"], r.get("distance_ci")),
+                     pd, pct_ci_cell(r["success_pct"], r.get("success_ci")),
+                     ps, f"{r.get('fell_pct', math.nan):.1f}", f"{r.get('train_step', 0):,}",
+                     f"{c.get('stage_name', '?')} d={c.get('difficulty', math.nan):.1f} "
+                     f"g={c.get('guide_scale', math.nan):.1f}"])
+    return headers, rows
+
+
+def table1_provenance(doc: dict, path, print_fn=print) -> list[str]:
+    """Prints where a table1.json's rows come from (settings, each row's checkpoint and
+    curriculum) and its verdict; returns the reasons it is a pipeline check ([] if none)."""
+    s, rows = doc.get("settings", {}), doc["rows"]
+    print_fn(f"file: {prov.rel(path)}")
+    for k in ("trials", "seed", "horizon_s", "runs"):
+        print_fn(f"  {k}: {prov.fmt(s.get(k))}")
+    print_fn(f"  device: {prov.fmt(doc.get('device'))}")
+    reasons, stand_in, unfinished = [], [], []
+    for r in rows:
+        c = r.get("curriculum") or {}
+        print_fn(f"  {r['policy']}/{r['init']}: {r.get('checkpoint')} (step {r.get('train_step', 0):,}, "
+                 f"curriculum {c.get('stage_name')} difficulty {prov.fmt(c.get('difficulty'))} "
+                 f"guide_scale {prov.fmt(c.get('guide_scale'))} push_scale "
+                 f"{prov.fmt(c.get('push_scale'))})")
+        if "stand-in" in str(r.get("checkpoint", "")):
+            stand_in.append(f"{r['policy']}/{r['init']}")
+        if (c.get("guide_scale") or 0) > 0 or c.get("stage_name") not in (None, "pushes"):
+            unfinished.append(f"{r['policy']}/{r['init']} ({c.get('stage_name')}, guide_scale "
+                              f"{prov.fmt(c.get('guide_scale'))})")
+    if stand_in:
+        reasons.append("stand-in policies: " + ", ".join(stand_in))
+    if unfinished:
+        reasons.append("policies not through their curriculum: " + ", ".join(unfinished))
+    return prov.conclude(doc, reasons, rows, paper.TRIALS["table1"], "row", print_fn=print_fn)

@@ -13,6 +13,7 @@ trials failing on gaps / jumps / stairs, with 95% CIs (stats.py).
 
 from __future__ import annotations
 
+import math
 import pathlib
 import time
 import warnings
@@ -25,13 +26,14 @@ from biped_switch import env as env_lib
 from biped_switch import estimator as est_lib
 from biped_switch import paper
 from biped_switch import policies as pol
+from biped_switch import provenance as prov
 from biped_switch import runs as runs_lib
 from biped_switch import sweep
 from biped_switch import switching as sw
 from biped_switch import terrain
 from biped_switch.config import MULTI_TRACK_SEED, default_terrain_config
 from biped_switch.rollout import over_devices
-from biped_switch.stats import dist_success_cells, episode_table, pct_ci
+from biped_switch.stats import dist_success_cells, episode_table, pct_ci, pct_ci_cell
 
 SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
                   "estimator_no_overlap")
@@ -230,3 +232,65 @@ def table2_markdown(rows: list[dict]) -> str:
             + " | ".join(pct_ci(f[k], r["fail_ci"][k]) for k in paper.TABLE2_FAIL_ORDER) + " | "
             + (" / ".join(f"{v}" for v in ref) if ref else "-") + " |")
     return "\n".join(lines)
+
+
+def table2_rows(doc: dict, with_paper_only: bool = True):
+    """(headers, rows) of a table2.json as the notebook prints it, each method beside the paper's
+    row; with `with_paper_only`, the paper's methods not run here as "not run" rows."""
+    headers = ["method", "init", "trials", "% dist. (95% CI)", "% success (95% CI)", "% gap fail",
+               "% jump fail", "% stair fail", "switches/trial",
+               "paper dist. / success / gap / jump / stair"]
+    rows, seen = [], set()
+    for r in doc["rows"]:
+        f, p = r["fail_on"], paper.TABLE2.get(r["method"])
+        seen.add(r["method"])
+        rows.append([r["method"], r["init"], r["n"], pct_ci_cell(r["distance_pct"], r.get("distance_ci")),
+                     pct_ci_cell(r["success_pct"], r.get("success_ci")), f"{f['gaps']:.1f}",
+                     f"{f['jumps']:.1f}", f"{f['stairs']:.1f}",
+                     f"{r.get('switches_per_trial', math.nan):.2f}",
+                     " / ".join(f"{v}" for v in p) if p else "-"])
+    if with_paper_only:
+        for m, p in paper.TABLE2.items():
+            if m not in seen:
+                rows.append([m, "-", "not run", "-", "-", "-", "-", "-", "-",
+                             " / ".join(f"{v}" for v in p)])
+    return headers, rows
+
+
+def table2_provenance(doc: dict, path, print_fn=print) -> list[str]:
+    """Prints where a table2.json's rows come from (settings, methods not run, each init's
+    policies) and its verdict; returns the reasons it is a pipeline check ([] if none)."""
+    s, rows = doc.get("settings", {}), doc["rows"]
+    fmt = prov.fmt
+    print_fn(f"file: {prov.rel(path)}")
+    for k in ("trials", "seed", "horizon_s", "n_artifacts", "stand_in", "guide_scale", "runs",
+              "estimators", "dqn", "lookup"):
+        print_fn(f"  {k}: {fmt(s.get(k))}")
+    for sk in doc.get("skipped") or []:
+        print_fn(f"  not run: {sk}")
+    print_fn(f"  device: {fmt(doc.get('device'))}   track_seed: {fmt(doc.get('track_seed'))}   "
+             f"wall: {fmt(round(doc['wall_s'])) if doc.get('wall_s') is not None else 'not recorded'} s")
+    reasons, seen, subs = [], set(), {}
+    for r in rows:
+        srcs = tuple(r.get("policies") or ())
+        if srcs and (r["init"], srcs) not in seen:
+            seen.add((r["init"], srcs))
+            print_fn(f"  policies ({r['init']} init), walk/jumps/gaps/stairs:")
+            for src in srcs:
+                print_fn(f"    {src}")
+            subs[r["init"]] = [x.split(":")[0].removeprefix("stand-in for ")
+                               for x in prov.stand_ins(srcs)]
+    subs = {k: v for k, v in subs.items() if v}
+    if subs:
+        reasons.append("stand-in policies: " + "; ".join(f"{k} init {', '.join(v)}"
+                                                         for k, v in subs.items()))
+    if s.get("stand_in"):
+        reasons.append(f"--stand-in {s['stand_in']}")
+    if (s.get("guide_scale") or 0) > 0:
+        reasons.append(f"scripted guide forces on (guide_scale {s['guide_scale']:g})")
+    if s.get("n_artifacts") not in (None, paper.ARTIFACTS):
+        reasons.append(f"{s['n_artifacts']} artifacts per track (paper: {paper.ARTIFACTS})")
+    mismatch = sorted({x for r in rows for x in (r.get("policies") or ()) if "MISMATCH" in str(x)})
+    if mismatch:
+        reasons.append("DQN selector trained with other policies than those evaluated")
+    return prov.conclude(doc, reasons, rows, paper.TRIALS["table2"], "method", print_fn=print_fn)

@@ -13,6 +13,7 @@ import pathlib
 import numpy as np
 
 from biped_switch import paper
+from biped_switch import provenance as prov
 from biped_switch import runs as runs_lib
 from biped_switch.terrain import ARTIFACT_KINDS
 
@@ -100,3 +101,132 @@ def table3_markdown(doc: dict) -> str:
         lines.append("")
         lines.append("missing logs: " + "; ".join(doc["missing"]))
     return "\n".join(lines)
+
+
+def hours_cell(v) -> str:
+    """Hours as a table cell: "n/a" for None, minutes or seconds beside small values."""
+    if v is None:
+        return "n/a"
+    if v >= 0.1:
+        return f"{v:.2f}"
+    return f"{v:.2f} ({60 * v:.1f} min)" if v >= 1 / 60 else f"{v:.4f} ({3600 * v:.1f} s)"
+
+
+def table3_rows(doc: dict, checks: dict | None = None):
+    """(headers, rows) of a table3.json. Per method: total hours (n/a unless every part was
+    measured), the measured parts' sum; with `checks` (table3_checks), a column saying whether the
+    hours come from complete real runs."""
+    headers = ["method", "our hours"] + (["hours from"] if checks is not None else []) + [
+        "measured parts (sum)", "parts not measured", "paper hours", "device"]
+    rows = []
+    for r in doc["rows"]:
+        ref = r.get("paper_hours", paper.TABLE3_H.get(r["method"]))
+        parts = r.get("parts") or {}
+        known = [v for v in parts.values() if v is not None]
+        src = []
+        if checks is not None:
+            notes = checks.get(r["method"]) or []
+            src = ["-" if not known and r.get("hours") is None else
+                   "PIPELINE CHECK" if any("pipeline" in n for n in notes) else
+                   "UNFINISHED RUNS" if notes else "complete runs"]
+        rows.append([r["method"], hours_cell(r.get("hours"))] + src + [
+                     (f"{len(known)}/{len(parts)}" + (f" ({hours_cell(sum(known))})" if known else ""))
+                     if parts else "-",
+                     ", ".join(k for k, v in parts.items() if v is None) or "-",
+                     "-" if ref is None else f"{ref:g}", r.get("device") or "not recorded"])
+    return headers, rows
+
+
+def table3_parts_rows(doc: dict):
+    """(headers, rows): one row per measured or missing part of each method."""
+    headers = ["method", "part", "hours"]
+    return headers, [[r["method"], k, hours_cell(v)] for r in doc["rows"]
+                     for k, v in (r.get("parts") or {}).items()]
+
+
+def _run_dir(ckpt) -> pathlib.Path | None:
+    return None if ckpt is None else pathlib.Path(ckpt).parent.parent
+
+
+def table3_checks(doc: dict, results, runs) -> tuple[pathlib.Path, dict]:
+    """(the runs root, {method: notes}) of a Table III file: why each method's measured hours are
+    not those of complete, real training runs ([] when they are, or when nothing was measured).
+
+    A row's notes are its recorded `status` when the file has one for it (retrain_cost writes it;
+    "not measured" does not count), else the `run_notes` of the runs behind its measured parts,
+    found again as retrain_cost finds them (runs.find_policy / find_dqn) under the file's recorded
+    runs root (relative paths from the repository root), else `runs`. Sweep and estimator hours of
+    a pipeline-check results root, or of sweeps smaller than the paper's, are noted too."""
+    results = pathlib.Path(results)
+    init = doc.get("init") or "stand"
+    runs = prov.repo_path(doc["runs"]) if doc.get("runs") else pathlib.Path(runs)
+    pols = [_run_dir(runs_lib.find_policy(k, init, runs)) for k in ARTIFACT_KINDS]
+    deps = {"new policy": pols, "selector": [runs_lib.find_dqn(runs, init)],
+            "policy": [_run_dir(runs_lib.find_policy("mixed", init, runs))]}
+    lookup = results / "lookup" / f"lookup_{init}.json"
+    try:
+        sweeps = (json.loads(lookup.read_text()).get("meta") or {}).get("sweeps") or {}
+    except (OSError, ValueError):
+        sweeps = {}
+    checks = {}
+    for r in doc["rows"]:
+        parts, notes = r.get("parts") or {}, []
+        measured = [k for k, v in parts.items() if v is not None]
+        if not measured and r.get("hours") is None:
+            checks[r["method"]] = notes
+            continue
+        status = r.get("status")  # "not measured" (a part missing) says nothing about the others
+        own = status in (None, "not measured")
+        if not own and status != "complete":
+            notes += [n.strip() for n in str(status).split(";") if n.strip()]
+        if own and not parts:
+            notes.append("no parts recorded: its runs cannot be checked")
+        for k in measured:
+            if k in deps and own:
+                found = [d for d in deps[k] if d is not None]
+                if not found:
+                    notes.append(f"{k}: no run under {prov.rel(runs)}/ or models/ (cannot tell "
+                                 "whether it finished)")
+                notes += [f"{d.name}: {n}" for d in found for n in runs_lib.run_notes(d)]
+            if k.startswith(("sweep", "estimator")) and prov.is_pipeline_check(results):
+                notes.append(f"{k}: from a pipeline-check results root")
+            if k.startswith("sweep ") and k[6:] in sweeps:
+                n_pts = sweeps[k[6:]].get("points", 0)
+                if n_pts < paper.SWEEP_POINTS:
+                    notes.append(f"{k}: {n_pts:,} points (paper: {paper.SWEEP_POINTS:,})")
+        checks[r["method"]] = list(dict.fromkeys(notes))
+    return runs, checks
+
+
+def table3_provenance(doc: dict, path, results, runs, print_fn=print) -> list[str]:
+    """Prints where each method's hours come from (runs, their steps and curriculum, devices, the
+    parts not measured) and the verdict: complete real training runs, or a pipeline check /
+    unfinished runs / missing parts. `runs`: as in `table3_checks`."""
+    results = pathlib.Path(results)
+    runs, checks = table3_checks(doc, results, runs)
+    print_fn(f"file: {prov.rel(path)}   init: {doc.get('init', 'not recorded')}")
+    print_fn(f"  runs: {prov.rel(runs)}" + ("" if doc.get("runs") else
+                                            " (not recorded in the file: the runs root of the "
+                                            "recompute command)"))
+    print_fn(f"  results: {prov.fmt(doc.get('results'))}   notes: "
+             f"{doc.get('notes') or 'none recorded'}")
+    for r in doc["rows"]:
+        print_fn(f"  {r['method']}: {hours_cell(r.get('hours'))} h on "
+                 f"{r.get('device') or 'not recorded'}, status {r.get('status', 'not recorded')}")
+        for n in checks.get(r["method"]) or []:
+            print_fn(f"    - {n}")
+    for m in doc.get("missing") or []:
+        print_fn("  missing:", m)
+    reasons = []
+    if prov.is_pipeline_check(results):
+        reasons.append(f"the results root {prov.rel(results)} is a pipeline check")
+    flagged = [m for m, n in checks.items() if n]
+    if flagged:
+        reasons.append("hours of " + ", ".join(flagged) + " are from pipeline-check, unfinished or "
+                       "unverified runs (listed above), not complete training runs")
+    incomplete = [r["method"] for r in doc["rows"] if r.get("hours") is None]
+    if incomplete:
+        reasons.append("no total hours for " + ", ".join(incomplete) + " (parts not measured)")
+    return prov.conclude(doc, reasons, print_fn=print_fn,
+                         ok="every method's hours come from complete training runs "
+                            "(step goal reached, curriculum finished), outside any pipeline check.")

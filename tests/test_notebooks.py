@@ -10,7 +10,8 @@ committed input that is missing fails the test; there is no synthetic fallback. 
 at an empty results root must fail with a message naming the command that makes its input.
 
 A synthetic tree, written here with the package's own table and lookup functions, tests the
-notebooks' helpers (_common) on cases the committed results do not have (finished runs, a runs
+notebooks' helpers (_common) and the package functions they print (table2, table3, fig4b,
+fig5, runs) on cases the committed results do not have (finished runs, a runs
 folder without estimators).
 """
 
@@ -58,6 +59,9 @@ COMMITTED = {"table1_single_policies": (None, None),
 
 sys.path.insert(0, str(NB_DIR))
 import _common as C  # noqa: E402
+
+from biped_switch import fig4b, fig5, paper, table2, table3  # noqa: E402
+from biped_switch import runs as runs_lib  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- synthetic tree
@@ -304,30 +308,30 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
     monkeypatch.setenv("BIPED_RESULTS", str(synthetic))
     assert C.results_root() == synthetic
     doc = json.loads((synthetic / "table2" / "table2.json").read_text())
-    reasons = C.provenance_table2(doc, synthetic / "table2" / "table2.json")
+    reasons = table2.table2_provenance(doc, synthetic / "table2" / "table2.json")
     assert any("stand-in" in r for r in reasons) and any("guide" in r for r in reasons)
-    txt = C.text_table(*C.table2_rows(doc))
+    txt = C.text_table(*table2.table2_rows(doc))
     for r in doc["rows"]:
         line = next(ln for ln in txt.splitlines() if ln.startswith(r["method"] + " "))
         assert f"{r['success_pct']:.1f}" in line and f"{r['fail_on']['gaps']:.1f}" in line
     assert "not run" in next(ln for ln in txt.splitlines() if ln.startswith("end_to_end"))
     look = json.loads((synthetic / "lookup" / "lookup_stand.json").read_text())
-    rows = C.lookup_rows(look)[1]
+    rows = fig4b.lookup_rows(look)[1]
     assert len(rows) == 9
     for pair, _, _, best in rows:
         v = look["best_m"][pair.replace(" ", "")]
         assert best == ("-" if v is None else f"{v:.2f}")
-    rec = C.load_trial(synthetic / "table2" / "fig5_trial0.npz")
-    ev = C.trial_events(rec)[1]
-    assert sum(r[2] == "switch" for r in ev) == int(rec["switched"][:C.trial_length(rec)].sum()) > 0
-    assert C.trial_outcome(rec) == "success"
+    rec = fig5.load_trial(synthetic / "table2" / "fig5_trial0.npz")
+    ev = fig5.trial_events(rec)[1]
+    assert sum(r[2] == "switch" for r in ev) == int(rec["switched"][:fig5.trial_length(rec)].sum()) > 0
+    assert fig5.trial_outcome(rec) == "success"
     monkeypatch.setenv("BIPED_RUNS", str(synthetic_runs))
     assert C.run_roots(synthetic) == [synthetic_runs] == [C.runs_root(synthetic)]
     runs = C.find_training_runs(synthetic)  # <results>/training/* and the runs folder
     by_name = {d.name: d for d in runs}
     assert sorted(by_name) == ["gaps_random", "gaps_stand", "jumps_stand", "walk_stand"]
-    assert C.training_rows([by_name["walk_stand"]])[1][0][1] == "120,000"
-    reasons = C.training_checks(runs)
+    assert runs_lib.training_rows([by_name["walk_stand"]], C.run_name)[1][0][1] == "120,000"
+    reasons = runs_lib.training_checks(runs, C.run_name)
     assert not any(C.run_name(by_name["gaps_random"]) in r for r in reasons)  # finished: no note
     assert any("jumps_stand" in r and "100,000 of 1,000,000" in r and "curriculum unfinished" in r
                for r in reasons)
@@ -338,19 +342,19 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
     assert C.runs_root(PIPELINE_CHECK) == REPO / "models" / "pipeline_check"
     # Table III: hours whose runs cannot be found are not taken for complete runs
     t3 = json.loads((synthetic / "table3" / "table3.json").read_text())
-    runs3, checks = C.table3_checks(t3, synthetic, synthetic_runs)
+    runs3, checks = table3.table3_checks(t3, synthetic, synthetic_runs)
     assert runs3 == synthetic_runs and checks["dqn"] == []
     assert checks["end_to_end"] and checks["ours"]
-    t3_reasons = C.provenance_table3(t3, synthetic / "table3" / "table3.json", synthetic,
+    t3_reasons = table3.table3_provenance(t3, synthetic / "table3" / "table3.json", synthetic,
                                      synthetic_runs)
     assert any("no total hours for dqn" in r for r in t3_reasons)
-    hdr, rows3 = C.table3_rows(t3, checks)
+    hdr, rows3 = table3.table3_rows(t3, checks)
     assert [r[hdr.index("hours from")] for r in rows3] == ["UNFINISHED RUNS", "-", "UNFINISHED RUNS"]
     from biped_switch import terrain
 
     for fig in (C.plot_table1(json.loads((synthetic / "table1" / "table1.json").read_text())),
                 C.plot_table2(doc), C.plot_fig4b(look),
-                C.plot_fig5(rec, terrain.generate_track(int(rec["track_seed"]), "mixed", 1.0)),
+                fig5.fig5_figure(rec, terrain.generate_track(int(rec["track_seed"]), "mixed", 1.0)),
                 C.plot_table3(json.loads((synthetic / "table3" / "table3.json").read_text())),
                 C.plot_training_run(runs[0]), C.plot_estimators(C.find_estimators(synthetic))):
         assert fig.axes
@@ -443,7 +447,7 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
     doc = json.loads((tmp_path / "table3" / "table3.json").read_text())
     ours = next(r for r in doc["rows"] if r["method"] == "ours")["parts"]
     assert ours["sweep jumps"] is not None and ours["estimator gaps"] is not None  # read <results>
-    checks = C.table3_checks(doc, root)[1]
+    checks = table3.table3_checks(doc, root, C.runs_root(root))[1]
     # its runs are models/pipeline_check: flagged wherever measured
     assert checks["ours"] and all(checks[r["method"]] for r in doc["rows"]
                                   if any(v is not None for v in r["parts"].values()))
@@ -467,7 +471,7 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
         assert images == 1
         assert [r["policy"] for r in doc["rows"]] == ["walk"]  # the trained walk policy
         n = min(r["n"] for r in doc["rows"])
-        assert f"{n} trials per row (paper: {C.PAPER_TRIALS['table1']})" in verdicts[0]
+        assert f"{n} trials per row (paper: {paper.TRIALS['table1']})" in verdicts[0]
         assert "stand-in" not in verdicts[0]
         for r in doc["rows"]:
             line = next(ln for ln in text.splitlines()
@@ -491,7 +495,7 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
                 assert f"{r['hours']:.2f}" in text
             for part, v in (r.get("parts") or {}).items():  # the parts table, one line each
                 assert any(ln.split()[:1] == [r["method"]] and f" {part} " in ln
-                           and ln.rstrip().endswith(C._hours(v)) for ln in text.splitlines()), part
+                           and ln.rstrip().endswith(table3.hours_cell(v)) for ln in text.splitlines()), part
     elif name == "fig4b_switch_success":
         doc = json.loads((data_root / "lookup" / "lookup_stand.json").read_text())
         assert images >= 1
@@ -501,8 +505,8 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
             src, dst = pair.split("->")
             assert f"{src} -> {dst}" in text and f"{v:.2f}" in text
     elif name == "fig5_trial":
-        rec = C.load_trial(data_root / "table2" / "fig5_trial0.npz")
-        n = C.trial_length(rec)
+        rec = fig5.load_trial(data_root / "table2" / "fig5_trial0.npz")
+        n = fig5.trial_length(rec)
         assert images >= 2
         events = [ln.split() for ln in text.splitlines()
                   if re.match(r"\d+ +[\d.]+ +(detect|switch) ", ln)]
@@ -524,7 +528,7 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
             line = next(ln for ln in text.splitlines() if ln.startswith(C.run_name(d) + " "))
             assert f"{int(np.nanmax(steps)):,}" in line, line
         train_verdict = verdicts[0]  # the training runs' (the estimators' comes after)
-        for reason in C.training_checks(runs):  # e.g. the walk run's unfinished push stage
+        for reason in runs_lib.training_checks(runs, C.run_name):  # e.g. the walk run's unfinished push stage
             assert reason in train_verdict
         assert "models/policies/walk_stand: " in train_verdict
         for e, _, _ in ests:
@@ -557,7 +561,7 @@ def test_cli_and_notebook_draw_the_same_fig5(tmp_path):
 
     rec = _trace(30_000)
     track = terrain.generate_track(30_000, "mixed", 1.0)
-    fig = C.plot_fig5(rec, track, "t")
+    fig = fig5.fig5_figure(rec, track, "t")
     assert len(fig.axes) == 3  # estimates, active policy, heights
     labels = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
     assert {"E_jumps", "E_gaps", "E_stairs", "walk", "left foot", "CoM over feet"} <= set(labels)

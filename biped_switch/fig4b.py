@@ -1,0 +1,83 @@
+"""Fig. 4b of the paper read back: the switch-point lookup tables `python -m biped_switch.sweep`
+writes (<results>/lookup/lookup_<init>.json), as arrays, as per-pair rows and with their provenance
+(how many sweep points, stand-in policies, guide forces). The drawing is the notebook's
+(experiments/notebooks/fig4b_switch_success.ipynb); the sweeps themselves are sweep.py's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from biped_switch import paper
+from biped_switch import provenance as prov
+from biped_switch.policies import POLICY_NAMES
+
+
+def lookup_arrays(doc: dict) -> dict:
+    """{target: {"rate": (P, nb) NaN where no data, "count": (P, nb), "bins_m": (nb,)}}."""
+    out = {}
+    for target, t in doc["tables"].items():
+        rate = np.array([[np.nan if v is None else v for v in r] for r in t["rate"]], float)
+        count = np.asarray(t["count"], float)
+        out[target] = {"rate": rate, "count": count, "bins_m": np.arange(rate.shape[1]) * 0.01}
+    return out
+
+
+def lookup_rows(doc: dict):
+    """(headers, rows), per (source -> target) pair: points, overall success, best switch distance."""
+    headers = ["pair", "switches", "% success (all distances)", "best switch distance [m]"]
+    rows = []
+    for target, t in lookup_arrays(doc).items():
+        for j, name in enumerate(POLICY_NAMES):
+            n = t["count"][j].sum()
+            if name == target:
+                continue
+            succ = np.nansum(t["rate"][j] * t["count"][j])
+            best = doc["best_m"].get(f"{name}->{target}")
+            rows.append([f"{name} -> {target}", int(n), f"{100 * succ / n:.1f}" if n else "-",
+                         "-" if best is None else f"{best:.2f}"])
+    return headers, rows
+
+
+def lookup_provenance(doc: dict, path, print_fn=print) -> list[str]:
+    """Prints each sweep's size, settings, data and policies, and the verdict of a lookup table;
+    returns the reasons it is a pipeline check ([] if none)."""
+    fmt = prov.fmt
+    meta = doc.get("meta") or {}
+    print_fn(f"file: {prov.rel(path)} (init {doc.get('init')})")
+    reasons, few, sub, guided, easy = [], [], [], [], []
+    gs = meta.get("guide_scale")
+    per = meta.get("settings") or {}  # per target: difficulty, guide_scale (when recorded)
+    for target, st in (meta.get("sweeps") or {}).items():
+        t_set = {**st, **(per.get(target) or {})}
+        g = t_set.get("guide_scale", gs)
+        print_fn(f"  sweep {target}: {st.get('points', 0):,} points, {fmt(st.get('success_pct'))}% "
+                 f"successful switches, {fmt(st.get('wall_s'))} s on {fmt(st.get('device'))}; "
+                 f"difficulty {fmt(t_set.get('difficulty'))}, guide_scale {fmt(g)}; data "
+                 f"{fmt(st.get('data'))}")
+        if st.get("points", 0) < paper.SWEEP_POINTS:
+            few.append(f"{target} {st.get('points', 0):,}")
+        if (g or 0) > 0:
+            guided.append(f"{target} {g:g}")
+        if t_set.get("difficulty") is not None and t_set["difficulty"] < 1:
+            easy.append(f"{target} {t_set['difficulty']:g}")
+    if not meta.get("sweeps"):
+        print_fn(f"  guide_scale: {fmt(gs)}")
+        if (gs or 0) > 0:
+            guided.append(f"{gs:g}")
+    for target, pols in (meta.get("policies") or {}).items():
+        items = list(pols.items()) if isinstance(pols, dict) else list(enumerate(pols))
+        print_fn(f"  policies of the {target} sweep:")
+        for name, src in items:
+            print_fn(f"    {name}: {src}")
+        if prov.stand_ins(src for _, src in items):
+            sub.append(target)
+    if sub:
+        reasons.append("stand-in policies in the " + ", ".join(sub) + " sweeps")
+    if guided:
+        reasons.append("scripted guide forces on (guide_scale " + ", ".join(guided) + ")")
+    if easy:
+        reasons.append("artifacts below full difficulty (" + ", ".join(easy) + ")")
+    if few:
+        reasons.append(f"sweep points {', '.join(few)} (paper: {paper.SWEEP_POINTS:,} per target)")
+    return prov.conclude(doc, reasons, print_fn=print_fn)
