@@ -38,7 +38,7 @@ from biped_switch import env as env_lib
 from biped_switch import policies as pol
 from biped_switch import terrain
 from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config
-from biped_switch.estimator import HM_SIZE
+from biped_switch.estimator import HM_SIZE, load_data
 from biped_switch.rollout import over_devices, reset_by_track, run_episodes
 from biped_switch.switching import smoothed_success_pct
 
@@ -433,12 +433,6 @@ def merge_parts(part_dir: pathlib.Path, path: pathlib.Path, meta: dict) -> pathl
     merged["meta"] = np.array(json.dumps(meta, default=str))
     np.savez_compressed(path, **merged)
     return path
-
-
-def load_data(path: pathlib.Path) -> dict:
-    d = dict(np.load(path))
-    d["meta"] = json.loads(str(d["meta"]))
-    return d
 
 
 def tables_from_data(data_by_target: dict, cfg) -> dict:

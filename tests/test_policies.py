@@ -13,6 +13,7 @@ import pytest
 
 from biped_switch import env as env_lib
 from biped_switch import policies as pol
+from biped_switch import runs as runs_lib
 from biped_switch.config import default_train_config
 
 from policy_runs import fake_policy_run
@@ -48,7 +49,9 @@ def test_suite_actions_are_load_policy_actions_on_any_wider_obs(suite_runs):
     assert not np.allclose(acts[0], acts[1])  # each policy its own parameters
 
 
-def test_stand_in_is_named(tmp_path):
+def test_stand_in_is_named(tmp_path, monkeypatch):
+    # only the fake walk run exists: the committed (real) artifact policies are out of sight
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
     fake_policy_run(tmp_path, "walk")
     env = env_lib.make_env("mixed", n_tracks=1, **pol.suite_env_overrides("stand", tmp_path,
                                                                           stand_in="walk"))

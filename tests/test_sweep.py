@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from biped_switch import estimator
 from biped_switch import policies as pol
 from biped_switch import sweep
 
@@ -340,7 +341,7 @@ def test_resume_makes_only_missing_points_and_sums_wall_time(fake_sweep, tmp_pat
     assert run.points_new == 40 and run.loop_s == 20
     assert (run.steady_points, run.steady_s) == (20, 10)
     assert run.wall_s_total == 21 + 21 and _meta(part_dir)["wall_s_total"] == 42
-    a, b = sweep.load_data(ref.path), sweep.load_data(run.path)
+    a, b = estimator.load_data(ref.path), estimator.load_data(run.path)
     for k in a:
         if k != "meta":
             np.testing.assert_array_equal(a[k], b[k], err_msg=k)
@@ -361,7 +362,7 @@ def test_resume_extends_to_more_points_and_refuses_other_track_banks(fake_sweep,
     c.lookup_bin_m = 0.02  # binning the merged data is no reason to refuse
     run = sweep.run_sweep("stand", "jumps", c, tmp_path, n_tracks=1000)
     assert calls == [2, 3, 4] and run.points_new == 60
-    assert len(sweep.load_data(run.path)["label"]) == 100
+    assert len(estimator.load_data(run.path)["label"]) == 100
     assert _meta(tmp_path / "stand/jumps")["config"]["n_points"] == 90
     for kw, what in [({"n_tracks": 999}, "n_tracks"), ({"n_tracks": 1000, "seed": 1}, "seed")]:
         with pytest.raises(RuntimeError, match=what):
