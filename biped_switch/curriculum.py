@@ -7,6 +7,12 @@ Three stages, each advanced one notch whenever a milestone of average episode re
   2 pushes    random pushes grow, push_scale 0 -> 1.
 A stage ends when its value reaches its end and one more milestone is met there; the trainer
 records the end of the last one as `curriculum_done` in progress.json (the state stays at stage 2).
+
+It also steps back one notch when most evaluation episodes fall (`regress_fell`), across stage
+boundaries if need be (pushes 0 -> guides 0.1, guides 1 -> terrain), as legged_gym's terrain
+curriculum moves a robot that fails down a level. Session 7 found why this is needed: with a 5 s
+evaluation that met about one artifact, jumps and stairs had annealed their guides to 0 while
+every 20 s training episode still fell at the first or second artifact.
 The state is a small pytree of scalars: it is logged, saved with every checkpoint, restored on
 resume, and enters the environment as traced values, so a stage change never recompiles.
 """
@@ -41,27 +47,48 @@ class CurriculumState(NamedTuple):
 
 def milestone(reward_per_step, progress_frac, cfg=None, fell_frac=0.0):
     """True when the mean reward per step, the progress (if asked) and the fall rate meet the
-    milestone. The fall cap matters on artifact tracks: the 5 s evaluation meets about one
-    artifact, so a policy that walks well and then falls into the gap still scores a high reward
-    per step (gaps reached difficulty 1 with 70% of evaluation episodes falling, session 6)."""
+    milestone. The fall cap matters on artifact tracks: a policy that walks well and then falls
+    into the gap still scores a high reward per step (gaps reached difficulty 1 with 70% of its
+    5 s evaluation episodes falling, session 6)."""
     cfg = cfg or default_curriculum_config()
     ok = reward_per_step >= cfg.reward_milestone * cfg.reward_per_step_max
     return ok & (progress_frac >= cfg.min_progress) & (fell_frac <= cfg.max_fell)
 
 
+def regressed(fell_frac, cfg=None):
+    """True when so many evaluation episodes fell that the curriculum steps back a notch."""
+    cfg = cfg or default_curriculum_config()
+    return jnp.asarray(fell_frac) > cfg.regress_fell
+
+
 def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None,
            fell_frac=0.0) -> CurriculumState:
-    """Advances one notch of the current stage when the milestone is met; pure and jittable."""
+    """One notch forward on a milestone, one back when more than `regress_fell` of the
+    evaluation episodes fell, else no change; pure and jittable."""
     cfg = cfg or default_curriculum_config()
     hit = milestone(reward_per_step, progress_frac, cfg, fell_frac)
+    back = regressed(fell_frac, cfg) & ~hit
     stage = jnp.asarray(cs.stage)
     in_terrain, in_guides, in_pushes = stage == 0, stage == 1, stage == 2
     at_full = cs.difficulty >= 1.0 - 1e-6
     guides_off = cs.guide_scale <= 1e-6
+    guides_full = cs.guide_scale >= 1.0 - 1e-6
+    pushes_off = cs.push_scale <= 1e-6
+    # forward
     difficulty = jnp.where(hit & in_terrain, jnp.minimum(cs.difficulty + cfg.difficulty_step, 1.0),
                            cs.difficulty)
     guide = jnp.where(hit & in_guides, jnp.maximum(cs.guide_scale - cfg.guide_step, 0.0),
                       cs.guide_scale)
     push = jnp.where(hit & in_pushes, jnp.minimum(cs.push_scale + cfg.push_step, 1.0), cs.push_scale)
-    stage = jnp.where(hit & in_terrain & at_full, 1, jnp.where(hit & in_guides & guides_off, 2, stage))
-    return CurriculumState(stage, difficulty, guide, push)
+    new_stage = jnp.where(hit & in_terrain & at_full, 1,
+                          jnp.where(hit & in_guides & guides_off, 2, stage))
+    # back: pushes down, then guides up, then terrain down
+    push = jnp.where(back & in_pushes, jnp.maximum(cs.push_scale - cfg.push_step, 0.0), push)
+    to_guides = back & in_pushes & pushes_off
+    guide = jnp.where(back & in_guides, jnp.minimum(cs.guide_scale + cfg.guide_step, 1.0), guide)
+    guide = jnp.where(to_guides, jnp.minimum(cfg.guide_step, 1.0), guide)
+    to_terrain = back & in_guides & guides_full
+    difficulty = jnp.where((back & in_terrain) | to_terrain,
+                           jnp.maximum(cs.difficulty - cfg.difficulty_step, 0.0), difficulty)
+    new_stage = jnp.where(to_guides, 1, jnp.where(to_terrain, 0, new_stage))
+    return CurriculumState(new_stage, difficulty, guide, push)

@@ -204,7 +204,7 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
     fell_ax.plot(xy[:, 0], xy[:, 1], "r.:", label="fell")
     fell_ax.set_ylabel("fraction fell", color="r")
     fell_ax.set_ylim(-0.02, 1.02)
-    axes[1].set_title("milestone rollout (5 s, current curriculum)")
+    axes[1].set_title("milestone rollout (current curriculum; 5 s to session 6, then 20 s)")
     for key in ("difficulty", "guide_scale", "push_scale"):  # logged with every epoch
         xy = series(key)
         axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)

@@ -4,8 +4,9 @@
 
 One env and one compiled PPO iteration serve the whole run (the compile is printed once): the
 curriculum's difficulty, guide and push levels enter as traced values. Every `chunk_timesteps`
-env steps a fixed-horizon rollout of the deterministic policy measures the mean reward per step,
-`curriculum.update` advances a notch on a milestone, and an Orbax checkpoint is written of the
+env steps a whole-episode rollout of the deterministic policy measures the mean reward per step
+and the fall rate, `curriculum.update` advances a notch on a milestone (or steps back one when
+most episodes fall), and an Orbax checkpoint is written of the
 parameters, the optimiser's moments and the observation normaliser, with a `progress.json` (step,
 curriculum, evaluation, wall time, speed) beside it. A rerun of the same command resumes from
 runs/<policy>_<init>/, or, when that is absent (a fresh clone), from the committed copy under
@@ -66,8 +67,9 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
 
     One env (`env_fn(cfg)`) and one compiled PPO iteration serve the whole run: the curriculum's
     difficulty, guide and push levels enter as traced arguments. Every `chunk_timesteps` steps a
-    fixed-horizon rollout of the deterministic policy measures the mean reward per step,
-    `curriculum.update` advances a notch on a milestone, and a checkpoint is written.
+    whole-episode rollout of the deterministic policy measures the mean reward per step and the
+    fall rate, `curriculum.update` moves a notch (forward on a milestone, back when most fall),
+    and a checkpoint is written.
     `on_restore(train_state)` is called with the state a resume restored (a hook for tests)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     runs_lib.restore_committed(run_dir, print_fn)

@@ -23,10 +23,48 @@ def test_fall_cap_blocks_a_milestone():
     assert CFG.max_fell == pytest.approx(0.25)
     assert bool(cl.milestone(4.5, 1.0, CFG, fell_frac=0.25))
     assert not bool(cl.milestone(4.5, 1.0, CFG, fell_frac=0.26))
-    cs = cl.update(cl.CurriculumState(0, 0.9, 1.0, 0.0), 4.5, 1.0, CFG, fell_frac=0.7)
+    cs = cl.update(cl.CurriculumState(0, 0.9, 1.0, 0.0), 4.5, 1.0, CFG, fell_frac=0.5)
     assert float(cs.difficulty) == pytest.approx(0.9)
     cs = cl.update(cs, 4.5, 1.0, CFG, fell_frac=0.1)
     assert float(cs.difficulty) == pytest.approx(1.0)
+
+
+def test_many_falls_step_back_across_stages():
+    """Above `regress_fell` the state walks back, one notch per evaluation: pushes 0.2 -> 0.1 -> 0,
+    then guides 0.1 -> 0.2 ... -> 1, then difficulty 1 -> 0.9 -> ... -> 0, and stays there."""
+    assert CFG.regress_fell == pytest.approx(0.6)
+    cs = cl.CurriculumState(2, 1.0, 0.0, 0.2)
+    trace = []
+    for _ in range(25):
+        cs = cl.update(cs, 4.5, 1.0, CFG, fell_frac=0.61)
+        trace.append((int(cs.stage), round(float(cs.difficulty), 6), round(float(cs.guide_scale), 6),
+                      round(float(cs.push_scale), 6)))
+    assert trace[:4] == [(2, 1.0, 0.0, 0.1), (2, 1.0, 0.0, 0.0), (1, 1.0, 0.1, 0.0),
+                         (1, 1.0, 0.2, 0.0)]
+    assert trace[10] == (1, 1.0, 0.9, 0.0) and trace[11] == (1, 1.0, 1.0, 0.0)
+    assert trace[12] == (0, 0.9, 1.0, 0.0)  # guides full and still falling: terrain steps down
+    assert trace[13] == (0, 0.8, 1.0, 0.0)
+    assert trace[21] == (0, 0.0, 1.0, 0.0) and trace[24] == (0, 0.0, 1.0, 0.0)
+
+
+def test_between_the_thresholds_holds():
+    """Falls between max_fell and regress_fell neither advance nor regress; exactly at
+    regress_fell holds too."""
+    cs0 = cl.CurriculumState(1, 1.0, 0.5, 0.0)
+    for fell in (0.26, 0.45, 0.6):
+        cs = cl.update(cs0, 4.5, 1.0, CFG, fell_frac=fell)
+        assert (int(cs.stage), float(cs.guide_scale)) == (1, pytest.approx(0.5))
+    cs = cl.update(cs0, 4.5, 1.0, CFG, fell_frac=0.2)
+    assert float(cs.guide_scale) == pytest.approx(0.4)
+    cs = cl.update(cs0, 1.0, 1.0, CFG, fell_frac=0.9)
+    assert float(cs.guide_scale) == pytest.approx(0.6)
+
+
+def test_regress_can_be_disabled():
+    cfg = default_curriculum_config()
+    cfg.regress_fell = 1.0
+    cs = cl.update(cl.CurriculumState(2, 1.0, 0.0, 0.3), 1.0, 1.0, cfg, fell_frac=1.0)
+    assert float(cs.push_scale) == pytest.approx(0.3)
 
 
 def test_no_milestone_no_change():
@@ -74,11 +112,12 @@ def test_progress_gate():
 
 
 def test_jit_matches_python():
-    f = jax.jit(lambda cs, r: cl.update(cs, r, 1.0, CFG))
+    f = jax.jit(lambda cs, r, fell: cl.update(cs, r, 1.0, CFG, fell_frac=fell))
     cs_py, cs_jit = cl.CurriculumState(), cl.CurriculumState()
-    for r in [HIT, MISS] * 3 + [HIT] * 15:
-        cs_py = cl.update(cs_py, r, 1.0, CFG)
-        cs_jit = f(cs_jit, r)
+    seq = [(HIT, 0.0), (MISS, 0.0)] * 3 + [(HIT, 0.0)] * 15 + [(MISS, 0.9)] * 4 + [(HIT, 0.1)] * 3
+    for r, fell in seq:
+        cs_py = cl.update(cs_py, r, 1.0, CFG, fell_frac=fell)
+        cs_jit = f(cs_jit, r, fell)
     np.testing.assert_allclose([float(v) for v in cs_py], [float(v) for v in cs_jit], atol=1e-6)
 
 
