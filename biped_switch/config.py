@@ -133,7 +133,7 @@ def default_gait_config() -> config_dict.ConfigDict:
 def default_curriculum_config() -> config_dict.ConfigDict:
     """Guided curriculum (Tidd et al.): terrain up with guides, guides down, pushes up."""
     return config_dict.create(
-        reward_milestone=0.7,  # advance when mean episode reward per step >= this fraction ...
+        reward_milestone=0.65,  # advance when mean episode reward per step >= this fraction ...
         reward_per_step_max=5.4,  # ... of the best possible (3*0.8 + 1 + 1 + 0.5 + 0.5)
         min_progress=0.0,  # and mean progress_frac >= this (0 disables)
         max_fell=0.25,  # and at most this fraction of evaluation episodes fell (1 disables)

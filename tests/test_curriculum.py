@@ -8,14 +8,14 @@ from biped_switch import curriculum as cl
 from biped_switch.config import default_curriculum_config
 
 CFG = default_curriculum_config()
-HIT = CFG.reward_milestone * CFG.reward_per_step_max  # 0.7 * 5.4 = 3.78 reward per step
+HIT = CFG.reward_milestone * CFG.reward_per_step_max  # 0.65 * 5.4 = 3.51 reward per step
 MISS = HIT - 0.01
 
 
 def test_milestone_threshold_is_hand_computed():
-    assert HIT == pytest.approx(3.78)
-    assert bool(cl.milestone(3.78, 1.0, CFG))
-    assert not bool(cl.milestone(3.77, 1.0, CFG))
+    assert HIT == pytest.approx(3.51)
+    assert bool(cl.milestone(3.5101, 1.0, CFG))
+    assert not bool(cl.milestone(3.50, 1.0, CFG))
 
 
 def test_fall_cap_blocks_a_milestone():
