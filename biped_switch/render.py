@@ -108,7 +108,10 @@ def main(argv=None) -> int:
     p.add_argument("--kind", default=None, help="terrain kind (default: the policy's)")
     p.add_argument("--runs", default="runs")
     p.add_argument("--seconds", type=float, default=8.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help=f"rng seed; the track's seed is {EVAL_TRACK_SEED:,} + this unless --track-seed")
+    p.add_argument("--track-seed", type=int, default=None,
+                   help="the track's seed (e.g. one of a Table I row's success_track_seeds)")
     # the choices are spelled out: importing env.BACKENDS here would import mujoco before _gl_default
     p.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"),
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
@@ -128,14 +131,16 @@ def main(argv=None) -> int:
         if ckpt is None:
             p.error(f"no trained {a.policy}/{a.init} policy under {a.runs}/ or models/policies/")
         overrides = runs_lib.policy_env_overrides(ckpt)
-    env = env_lib.make_env(kind, a.init, n_tracks=1, seed=EVAL_TRACK_SEED + a.seed,
+    track_seed = EVAL_TRACK_SEED + a.seed if a.track_seed is None else a.track_seed
+    env = env_lib.make_env(kind, a.init, n_tracks=1, seed=track_seed,
                            backend=a.backend, **overrides)
     act = None if ckpt is None else load_policy(ckpt, env)[0]
     qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
     fps = 1.0 / (2 * env.dt)
     out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")
     write(frames(qpos, boxes), out, fps)
-    print(f"wrote {out} ({len(qpos)} steps, {env.backend} backend on {jax.devices()[0].platform}); "
+    print(f"wrote {out} ({len(qpos)} steps, track seed {track_seed}, {env.backend} backend on "
+          f"{jax.devices()[0].platform}); "
           f"final metrics {metrics}")
     return 0
 

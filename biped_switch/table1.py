@@ -90,7 +90,10 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
                curriculum=progress["curriculum"], backend=env.backend, track_seed=track_seed,
                env_overrides=overrides, horizon_s=horizon_s,
                horizon_from=horizon_from, finish_m_max=finish_m,
-               timed_out_pct=100.0 * float((np.asarray(merged["done"]) < 0.5).mean()))
+               timed_out_pct=100.0 * float((np.asarray(merged["done"]) < 0.5).mean()),
+               # which trials to render: track seed s is `render --policy P --seed s - EVAL_TRACK_SEED`
+               success_track_seeds=[track_seed + i for i in np.flatnonzero(
+                   np.asarray(merged["success"]) > 0.5).tolist()])
     return out
 
 
