@@ -202,6 +202,16 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     return progress
 
 
+def saved_learning_rate(run_dir: pathlib.Path) -> float | None:
+    """The Adam step size a run was last trained with (its config.json under runs/, else the
+    committed copy's), so that a resume keeps a lowered rate without repeating the flag."""
+    for d in (run_dir, runs_lib.COMMITTED_DIR / run_dir.name):
+        lr = runs_lib.read_config(d).get("ppo", {}).get("learning_rate")
+        if lr is not None:
+            return float(lr)
+    return None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.train", description=__doc__.split("\n")[0])
     p.add_argument("--policy", default="walk", choices=TRAIN_KINDS,
@@ -217,7 +227,8 @@ def main(argv=None) -> int:
                    help="pd actions: offsets from the scripted gait (default) or the standing pose")
     p.add_argument("--no-phase", action="store_true", help="no gait phase clock in the observation")
     p.add_argument("--learning-rate", type=float, default=None,
-                   help="PPO's Adam step size (a resume keeps the optimiser's moments)")
+                   help="PPO's Adam step size (default: a resumed run's own, from its "
+                        "config.json, else 3e-4; a resume keeps the optimiser's moments)")
     p.add_argument("--warm-start", default=None, metavar="CKPT_OR_RUN",
                    help="start a new run from the parameters of a checkpoint folder, a run "
                         "folder's latest checkpoint, or a run name (e.g. walk_stand: runs/, then "
@@ -257,15 +268,18 @@ def main(argv=None) -> int:
         cfg.env.pd_offset = a.pd_offset
     if a.warm_start:
         cfg.warm_start = a.warm_start
+    run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
     if a.learning_rate is not None:
         if not a.learning_rate > 0:
             p.error(f"--learning-rate must be > 0, got {a.learning_rate}")
         cfg.ppo.learning_rate = a.learning_rate
+    elif (lr := saved_learning_rate(run_dir)) is not None and lr != cfg.ppo.learning_rate:
+        print(f"keeping the run's learning rate {lr:g} (config.json; --learning-rate changes it)")
+        cfg.ppo.learning_rate = lr
     if a.total_steps is not None:
         cfg.total_timesteps = a.total_steps
     if a.chunk_steps is not None:
         cfg.chunk_timesteps = a.chunk_steps
-    run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
     print(f"training {a.policy}/{a.init} on {jax.device_count()} {jax.devices()[0].platform} device(s), "
           f"{cfg.total_timesteps:,} steps in chunks of {cfg.chunk_timesteps:,} -> {run_dir}", flush=True)
     train(cfg, run_dir, a.max_chunks, print_fn=functools.partial(print, flush=True))

@@ -263,3 +263,17 @@ def test_warm_start_names_resolve_to_checkpoints(trained):
     assert runs_lib.resolve_checkpoint("gaps_stand", run_dir.parent) == latest  # a run name
     with pytest.raises(FileNotFoundError, match="no_such_run"):
         runs_lib.resolve_checkpoint("no_such_run", run_dir.parent)
+
+
+def test_a_resume_keeps_the_runs_lowered_learning_rate(tmp_path, monkeypatch):
+    """The rate comes from runs/<run>/config.json, else the committed copy's; none: None."""
+    committed = tmp_path / "models" / "policies"
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", committed)
+    run = tmp_path / "runs" / "jumps_stand"
+    assert train_lib.saved_learning_rate(run) is None
+    (committed / "jumps_stand").mkdir(parents=True)
+    (committed / "jumps_stand" / "config.json").write_text(json.dumps({"ppo": {"learning_rate": 2e-4}}))
+    assert train_lib.saved_learning_rate(run) == pytest.approx(2e-4)
+    run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({"ppo": {"learning_rate": 1e-4}}))
+    assert train_lib.saved_learning_rate(run) == pytest.approx(1e-4)
