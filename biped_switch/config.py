@@ -140,6 +140,8 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         regress_fell=0.6,  # one notch back when more than this fraction fell (1 disables)
         difficulty_step=0.1,
         guide_step=0.1,
+        guide_min_step=0.025,  # below 2 * guide_step, notches halve down to this (0.1, 0.05,
+        # 0.025, 0): jumps fell 12-27% at guides 0.1 and 100% at 0 (= guide_step disables)
         push_step=0.1,
         max_push_N=150.0,  # push force at push_scale 1
         push_duration_s=0.2,

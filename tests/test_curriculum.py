@@ -31,7 +31,8 @@ def test_fall_cap_blocks_a_milestone():
 
 def test_many_falls_step_back_across_stages():
     """Above `regress_fell` the state walks back, one notch per evaluation: pushes 0.2 -> 0.1 -> 0,
-    then guides 0.1 -> 0.2 ... -> 1, then difficulty 1 -> 0.9 -> ... -> 0, and stays there."""
+    then guides 0.025 -> 0.05 -> 0.1 -> 0.2 ... -> 1, then difficulty 1 -> 0.9 -> ... -> 0, and
+    stays there."""
     assert CFG.regress_fell == pytest.approx(0.6)
     cs = cl.CurriculumState(2, 1.0, 0.0, 0.2)
     trace = []
@@ -39,12 +40,12 @@ def test_many_falls_step_back_across_stages():
         cs = cl.update(cs, 4.5, 1.0, CFG, fell_frac=0.61)
         trace.append((int(cs.stage), round(float(cs.difficulty), 6), round(float(cs.guide_scale), 6),
                       round(float(cs.push_scale), 6)))
-    assert trace[:4] == [(2, 1.0, 0.0, 0.1), (2, 1.0, 0.0, 0.0), (1, 1.0, 0.1, 0.0),
-                         (1, 1.0, 0.2, 0.0)]
-    assert trace[10] == (1, 1.0, 0.9, 0.0) and trace[11] == (1, 1.0, 1.0, 0.0)
-    assert trace[12] == (0, 0.9, 1.0, 0.0)  # guides full and still falling: terrain steps down
-    assert trace[13] == (0, 0.8, 1.0, 0.0)
-    assert trace[21] == (0, 0.0, 1.0, 0.0) and trace[24] == (0, 0.0, 1.0, 0.0)
+    assert trace[:6] == [(2, 1.0, 0.0, 0.1), (2, 1.0, 0.0, 0.0), (1, 1.0, 0.025, 0.0),
+                         (1, 1.0, 0.05, 0.0), (1, 1.0, 0.1, 0.0), (1, 1.0, 0.2, 0.0)]
+    assert trace[12] == (1, 1.0, 0.9, 0.0) and trace[13] == (1, 1.0, 1.0, 0.0)
+    assert trace[14] == (0, 0.9, 1.0, 0.0)  # guides full and still falling: terrain steps down
+    assert trace[15] == (0, 0.8, 1.0, 0.0)
+    assert trace[23] == (0, 0.0, 1.0, 0.0) and trace[24] == (0, 0.0, 1.0, 0.0)
 
 
 def test_between_the_thresholds_holds():
@@ -58,6 +59,15 @@ def test_between_the_thresholds_holds():
     assert float(cs.guide_scale) == pytest.approx(0.4)
     cs = cl.update(cs0, 1.0, 1.0, CFG, fell_frac=0.9)
     assert float(cs.guide_scale) == pytest.approx(0.6)
+
+
+def test_coarse_guide_notches_when_min_step_is_the_step():
+    cfg = default_curriculum_config()
+    cfg.guide_min_step = cfg.guide_step
+    cs = cl.update(cl.CurriculumState(1, 1.0, 0.1, 0.0), HIT + 0.1, 1.0, cfg)
+    assert float(cs.guide_scale) == 0.0
+    cs = cl.update(cl.CurriculumState(1, 1.0, 0.0, 0.0), 1.0, 1.0, cfg, fell_frac=1.0)
+    assert float(cs.guide_scale) == pytest.approx(0.1)
 
 
 def test_regress_can_be_disabled():
@@ -83,16 +93,17 @@ def _run(rewards, cs=cl.CurriculumState()):
 
 
 def test_full_sequence_terrain_then_guides_then_pushes():
-    # 10 milestones raise difficulty 0 -> 1, the 11th ends stage 0; 10 more anneal guides to 0,
-    # the 21st ... ends stage 1; then pushes rise and cap at 1.
+    # 10 milestones raise difficulty 0 -> 1, the 11th ends stage 0; 9 anneal guides to 0.1, then
+    # the finer notches 0.05, 0.025, 0; the 24th ends stage 1; then pushes rise and cap at 1.
     cs, trace = _run([HIT] * 40)
     stages = [int(t[0]) for t in trace]
     assert stages[:10] == [0] * 10 and stages[10] == 1
     assert trace[9][1] == pytest.approx(1.0) and trace[8][1] == pytest.approx(0.9)
     assert all(t[2] == 1.0 for t in trace[:11])  # guides untouched during the terrain stage
-    assert trace[20][2] == pytest.approx(0.0) and stages[20] == 1 and stages[21] == 2
-    assert all(t[3] == 0.0 for t in trace[:22])  # no pushes before stage 2
-    assert trace[22][3] == pytest.approx(0.1)
+    assert [round(t[2], 6) for t in trace[18:23]] == [0.2, 0.1, 0.05, 0.025, 0.0]
+    assert stages[22] == 1 and stages[23] == 2
+    assert all(t[3] == 0.0 for t in trace[:24])  # no pushes before stage 2
+    assert trace[24][3] == pytest.approx(0.1)
     assert float(cs.push_scale) == pytest.approx(1.0) and int(cs.stage) == 2
 
 
