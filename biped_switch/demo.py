@@ -89,6 +89,9 @@ def main(argv=None) -> int:
           flush=True)
     for s in skipped:
         print(f"  skipped {s}")
+    in_training = [] if stand_ins else _in_training(a.runs)
+    if in_training:
+        print(f"  POLICIES IN TRAINING, NOT RESULTS: {' | '.join(in_training)}", flush=True)
     if stand_ins or guide > 0:
         print(f"  PIPELINE CHECK, NOT A RESULT: {', '.join(stand_ins) or 'no'} policies are stand-ins "
               f"for untrained ones ({a.stand_in} acts in their place); scripted guide forces at "
@@ -102,11 +105,14 @@ def main(argv=None) -> int:
         md = (f"PIPELINE CHECK, NOT A RESULT: stand-ins for {', '.join(stand_ins) or 'none'} "
               f"({a.stand_in} acts in their place), guide forces {guide:g}; {a.trials} trials of "
               f"{a.n_artifacts}-artifact tracks, {a.horizon_s:.0f} s limit.\n\n" + md)
+    elif in_training:
+        md = (f"POLICIES IN TRAINING, NOT RESULTS: {' | '.join(in_training)}; {a.trials} trials "
+              f"of {a.n_artifacts}-artifact tracks, {a.horizon_s:.0f} s limit.\n\n" + md)
     print(md)
     (out / "table2_demo.md").write_text(md + "\n")
     summary = {"methods": methods, "skipped": skipped, "trials": a.trials, "horizon_s": a.horizon_s,
                "n_artifacts": a.n_artifacts,
-               "guide_scale": guide, "stand_ins": stand_ins,
+               "guide_scale": guide, "stand_ins": stand_ins, "in_training": in_training,
                "policies": list(setups["stand"].suite.sources) if "stand" in setups else None,
                "rows": rows, "device": str(jax.devices()[0]),
                "backend": sorted({r["backend"] for r in rows})}
@@ -135,6 +141,20 @@ def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
                    for i in range(trials))
     ecfg = default_env_config()
     return float(np.ceil(ecfg.pause_s + margin * finish_m / ecfg.target_speed_mps))
+
+
+def _in_training(runs) -> list[str]:
+    """'<policy>: <why>' for each found stand-init policy whose run is not finished
+    (`runs.run_notes`: short of its step goal is not counted, an unfinished curriculum is)."""
+    out = []
+    for n in pol.POLICY_NAMES:
+        ckpt = runs_lib.find_policy(n, "stand", pathlib.Path(runs))
+        if ckpt is None:
+            continue
+        notes = [m for m in runs_lib.run_notes(ckpt.parent.parent) if not m.startswith("at step")]
+        if notes:
+            out.append(f"{n}: {'; '.join(notes)}")
+    return out
 
 
 def _untrained(runs) -> list:

@@ -308,10 +308,10 @@ def run_notes(run_dir) -> list[str]:
         if all(len(v) for v in last.values()):
             c = {"stage_name": "last logged", **{k: float(v[0]) for k, v in last.items()}}
     if c is not None and (c["guide_scale"] > 1e-6 or c["difficulty"] < 1 - 1e-6):
-        notes.append(f"curriculum unfinished ({c['stage_name']} d={c['difficulty']:.1f} "
-                     f"guide={c['guide_scale']:.1f})")
+        notes.append(f"curriculum unfinished ({c['stage_name']} d={round(float(c['difficulty']), 3)} "
+                     f"guide={round(float(c['guide_scale']), 3)})")
     elif "curriculum_done" in prog and not prog["curriculum_done"]:  # PPO runs since 2026-12-01
-        notes.append(f"push stage unfinished (push={c['push_scale']:.1f})")
+        notes.append(f"push stage unfinished (push={round(float(c['push_scale']), 3)})")
     stand_in = prog.get("stand_in") or any("stand-in" in str(p) for p in prog.get("policies") or ())
     if stand_in:
         notes.append(f"chose among stand-ins ({prog.get('stand_in') or 'see progress.json'})")

@@ -223,10 +223,33 @@ def test_demo_horizon_lets_the_target_speed_finish():
     assert 10.0 < max(finish) < 20.0  # 3 artifacts of 4-9 segments of ~0.4 m, flats between
 
 
+def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
+    """A found policy with an unfinished curriculum is named with its stage; a finished one is
+    not; a run short of its step goal alone is not flagged (the curriculum decides)."""
+    from biped_switch import demo, runs as runs_lib
+
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
+    runs = tmp_path / "runs"
+    cur = {"stage": 1, "stage_name": "guides", "difficulty": 1.0, "guide_scale": 0.05,
+           "push_scale": 0.0}
+    _fake_run(runs / "jumps_stand", 60.0, curriculum=cur, curriculum_done=False)
+    _fake_run(runs / "stairs_stand", 60.0, curriculum=cur | {"stage": 2, "stage_name": "pushes",
+              "guide_scale": 0.0, "push_scale": 0.5}, curriculum_done=False)
+    _fake_run(runs / "gaps_stand", 60.0, total_steps=10**9, curriculum=cur | {
+        "stage": 2, "stage_name": "pushes", "guide_scale": 0.0, "push_scale": 1.0},
+        curriculum_done=True)
+    assert demo._in_training(runs) == ["jumps: curriculum unfinished (guides d=1.0 guide=0.05)",
+                                       "stairs: push stage unfinished (push=0.5)"]
+
+
 @pytest.mark.slow
-def test_demo_runs_end_to_end_on_the_pipeline_check(tmp_path):
+def test_demo_runs_end_to_end_on_the_pipeline_check(tmp_path, monkeypatch):
     """`make demo` at a tiny size: table, Fig. 5 and summary written (about 6 min on 2 cores)."""
     from biped_switch import demo
+    from biped_switch import runs as runs_lib
+
+    # no committed policies either: the demo must fall back to the pipeline check
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "no_committed")
 
     import shutil
 
