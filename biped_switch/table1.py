@@ -110,7 +110,8 @@ def table1_markdown(rows: list[dict]) -> str:
         horizon = f"{r['horizon_s']:g}" if r.get("horizon_s") is not None else "-"
         lines.append(
             f"| {r['policy']} | {r['init']} | {r['n']} | {dist_success_cells(r)} | {pd} | {ps} | "
-            f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} g={c['guide_scale']:.1f} | "
+            f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} "
+            f"g={round(c['guide_scale'], 3)} p={round(c.get('push_scale', 0.0), 3)} | "
             f"{speed} | {horizon} | {r.get('track_seed', '-')} | {r.get('backend', '-')} |")
     return "\n".join(lines)
 
@@ -134,7 +135,8 @@ def table1_rows(doc: dict):
                      pd, pct_ci_cell(r["success_pct"], r.get("success_ci")),
                      ps, f"{r.get('fell_pct', math.nan):.1f}", f"{r.get('train_step', 0):,}",
                      f"{c.get('stage_name', '?')} d={c.get('difficulty', math.nan):.1f} "
-                     f"g={c.get('guide_scale', math.nan):.1f}"])
+                     f"g={round(c.get('guide_scale', math.nan), 3)} "
+                     f"p={round(c.get('push_scale', 0.0), 3)}"])
     return headers, rows
 
 

@@ -74,7 +74,7 @@ def test_markdown_row_has_paper_figures():
     row.update(speed_mps=0.61, speed_ci=[0.58, 0.64], horizon_s=85.0, track_seed=123,
                backend="mujoco")
     md = table1.table1_markdown([row])
-    assert "| terrain d=0.3 g=1.0 | 0.61 (0.58-0.64) | 85 | 123 | mujoco |" in md
+    assert "| terrain d=0.3 g=1.0 p=0.0 | 0.61 (0.58-0.64) | 85 | 123 | mujoco |" in md
 
 
 def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
