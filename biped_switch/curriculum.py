@@ -94,7 +94,7 @@ def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None,
     push = jnp.where(back & in_pushes, jnp.maximum(cs.push_scale - cfg.push_step, 0.0), push)
     to_guides = back & in_pushes & pushes_off
     guide = jnp.where(back & in_guides, jnp.minimum(g + bwd, 1.0), guide)
-    guide = jnp.where(to_guides, jnp.minimum(cfg.guide_min_step, 1.0), guide)
+    guide = jnp.where(to_guides, cfg.guide_min_step, guide)
     to_terrain = back & in_guides & guides_full
     difficulty = jnp.where((back & in_terrain) | to_terrain,
                            jnp.maximum(cs.difficulty - cfg.difficulty_step, 0.0), difficulty)

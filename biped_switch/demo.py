@@ -151,7 +151,7 @@ def _in_training(runs) -> list[str]:
         ckpt = runs_lib.find_policy(n, "stand", pathlib.Path(runs))
         if ckpt is None:
             continue
-        notes = [m for m in runs_lib.run_notes(ckpt.parent.parent) if not m.startswith("at step")]
+        notes = runs_lib.run_notes(ckpt.parent.parent, step_goal=False)
         if notes:
             out.append(f"{n}: {'; '.join(notes)}")
     return out

@@ -113,8 +113,9 @@ def run_episodes(env, state, horizon: int, act: ActFn, carry: Any = None, *,
 def rollout(env, policy: PolicyFn, rng: jax.Array, n_envs: int, horizon: int,
             track_ids: jax.Array | None = None, reset_args: dict | None = None,
             chunk: int | None = 50) -> dict:
-    """Per-episode `reward` (sum over live steps), `length` (live steps), `done`, and every final
-    metric, of `n_envs` episodes of `policy(obs batch, key)`.
+    """Per-episode `reward` and each `reward/<term>` (sums over live steps), `length` (live
+    steps), `done`, and every other metric of the last live step, of `n_envs` episodes of
+    `policy(obs batch, key)`.
 
     `track_ids` (n_envs,) picks each episode's track from the env's bank; default: random.
     `reset_args` (e.g. the curriculum's difficulty, guide_scale, push_scale; traced ok) go to
@@ -123,20 +124,27 @@ def rollout(env, policy: PolicyFn, rng: jax.Array, n_envs: int, horizon: int,
     k_reset, k_run = jax.random.split(rng)
     state = reset_by_track(env, jax.random.split(k_reset, n_envs), track_ids, **(reset_args or {}))
 
-    def act(total, state, live, key):
-        return policy(state.obs, key), total, None
+    terms = [k for k in state.metrics if k.startswith("reward/")]
 
-    def record(total, _, state, nxt, live):
-        return total + jnp.where(live, nxt.reward, 0.0), None  # never 0 * a frozen episode's
+    def act(sums, state, live, key):
+        return policy(state.obs, key), sums, None
 
-    ep = run_episodes(env, state, horizon, act, jnp.zeros(n_envs), record=record, rng=k_run,
-                      chunk=chunk)
-    return {"reward": ep.carry, "length": ep.length, "done": ep.done, **ep.metrics}
+    def record(sums, _, state, nxt, live):
+        step = {"reward": nxt.reward} | {k: nxt.metrics[k] for k in terms}
+        # never 0 * a frozen episode's value
+        return {k: sums[k] + jnp.where(live, v, 0.0) for k, v in step.items()}, None
+
+    sums = {k: jnp.zeros(n_envs) for k in ["reward", *terms]}
+    ep = run_episodes(env, state, horizon, act, sums, record=record, rng=k_run, chunk=chunk)
+    # a reward term's last-step value says little of the episode: its sum replaces it
+    return {"length": ep.length, "done": ep.done, **ep.metrics, **ep.carry}
 
 
 def summarize(result: dict, horizon: int) -> dict:
-    """Means over episodes; `reward_per_step` divides by the full horizon (a fall scores 0 after)."""
-    out = {k: float(jnp.mean(v)) for k, v in result.items()}
+    """Means over episodes; `reward_per_step` and each `reward/<term>` (then per step, summing to
+    it) divide by the full horizon (a fall scores 0 after)."""
+    out = {k: float(jnp.mean(v)) / (horizon if k.startswith("reward/") else 1)
+           for k, v in result.items()}
     out["reward_per_step"] = float(jnp.mean(result["reward"]) / horizon)
     return out
 

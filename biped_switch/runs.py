@@ -89,10 +89,14 @@ def load_checkpoint(path: pathlib.Path, template=None):
 
 
 # ----------------------------------------------------------------------- a run's config
-def read_config(run_dir: pathlib.Path) -> dict:
-    """The run's config.json as saved ({} when it has none)."""
-    f = pathlib.Path(run_dir) / "config.json"
-    return json.loads(f.read_text()) if f.is_file() else {}
+def read_config(run_dir: pathlib.Path, committed: bool = False) -> dict:
+    """The run's config.json as saved ({} when it has none); `committed`: else its committed
+    copy's under models/policies/ (what a resume on a fresh clone restores)."""
+    for d in (pathlib.Path(run_dir),) + ((COMMITTED_DIR / pathlib.Path(run_dir).name,)
+                                          if committed else ()):
+        if (d / "config.json").is_file():
+            return json.loads((d / "config.json").read_text())
+    return {}
 
 
 def run_config(run_dir: pathlib.Path) -> config_dict.ConfigDict:
@@ -285,8 +289,9 @@ def find_dqn(runs, init: str = "stand", dqn_dir=None) -> pathlib.Path | None:
 
 
 # ----------------------------------------------------------------------- what a run is
-def run_notes(run_dir) -> list[str]:
-    """Why a training run (PPO or DQN) is not a finished, real one; [] when nothing says so.
+def run_notes(run_dir, step_goal: bool = True) -> list[str]:
+    """Why a training run (PPO or DQN) is not a finished, real one; [] when nothing says so
+    (`step_goal` False: being short of the step goal is not a reason).
 
     It lies in a pipeline_check folder; its latest checkpoint is short of the step goal
     (progress.json's total_steps / total_env_steps, else config.json's); its curriculum is
@@ -299,7 +304,7 @@ def run_notes(run_dir) -> list[str]:
     cfg = read_config(d)
     total = next((v for v in (prog.get("total_steps"), prog.get("total_env_steps"),
                               cfg.get("total_timesteps"), cfg.get("total_env_steps")) if v), None)
-    if "step" in prog and total is not None and int(prog["step"]) < int(total):
+    if step_goal and "step" in prog and total is not None and int(prog["step"]) < int(total):
         notes.append(f"at step {int(prog['step']):,} of {int(total):,}")
     c = prog.get("curriculum")
     if c is None and (d / "metrics.csv").is_file():

@@ -91,10 +91,16 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
                env_overrides=overrides, horizon_s=horizon_s,
                horizon_from=horizon_from, finish_m_max=finish_m,
                timed_out_pct=100.0 * float((np.asarray(merged["done"]) < 0.5).mean()),
-               # which trials to render: track seed s is `render --policy P --seed s - EVAL_TRACK_SEED`
+               # the trials to render: `render --policy P --track-seed S`
                success_track_seeds=[track_seed + i for i in np.flatnonzero(
                    np.asarray(merged["success"]) > 0.5).tolist()])
     return out
+
+
+def curriculum_cell(c: dict) -> str:
+    """A checkpoint's curriculum as 'stage d=.. g=.. p=..' (fine guide levels kept: 0.025)."""
+    return (f"{c.get('stage_name', '?')} d={c.get('difficulty', math.nan):.1f} "
+            f"g={round(c.get('guide_scale', math.nan), 3)} p={round(c.get('push_scale', 0.0), 3)}")
 
 
 def table1_markdown(rows: list[dict]) -> str:
@@ -110,8 +116,7 @@ def table1_markdown(rows: list[dict]) -> str:
         horizon = f"{r['horizon_s']:g}" if r.get("horizon_s") is not None else "-"
         lines.append(
             f"| {r['policy']} | {r['init']} | {r['n']} | {dist_success_cells(r)} | {pd} | {ps} | "
-            f"{r['train_step']:,} | {c['stage_name']} d={c['difficulty']:.1f} "
-            f"g={round(c['guide_scale'], 3)} p={round(c.get('push_scale', 0.0), 3)} | "
+            f"{r['train_step']:,} | {curriculum_cell(c)} | "
             f"{speed} | {horizon} | {r.get('track_seed', '-')} | {r.get('backend', '-')} |")
     return "\n".join(lines)
 
@@ -134,9 +139,7 @@ def table1_rows(doc: dict):
         rows.append([r["policy"], r["init"], r["n"], pct_ci_cell(r["distance_pct"], r.get("distance_ci")),
                      pd, pct_ci_cell(r["success_pct"], r.get("success_ci")),
                      ps, f"{r.get('fell_pct', math.nan):.1f}", f"{r.get('train_step', 0):,}",
-                     f"{c.get('stage_name', '?')} d={c.get('difficulty', math.nan):.1f} "
-                     f"g={round(c.get('guide_scale', math.nan), 3)} "
-                     f"p={round(c.get('push_scale', 0.0), 3)}"])
+                     curriculum_cell(c)])
     return headers, rows
 
 

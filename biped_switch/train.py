@@ -205,11 +205,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
 def saved_learning_rate(run_dir: pathlib.Path) -> float | None:
     """The Adam step size a run was last trained with (its config.json under runs/, else the
     committed copy's), so that a resume keeps a lowered rate without repeating the flag."""
-    for d in (run_dir, runs_lib.COMMITTED_DIR / run_dir.name):
-        lr = runs_lib.read_config(d).get("ppo", {}).get("learning_rate")
-        if lr is not None:
-            return float(lr)
-    return None
+    lr = runs_lib.read_config(run_dir, committed=True).get("ppo", {}).get("learning_rate")
+    return None if lr is None else float(lr)
 
 
 def main(argv=None) -> int:

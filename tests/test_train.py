@@ -133,6 +133,9 @@ def test_metrics_log_and_curves(trained):
         if cells[header.index("train/reward_per_step")]:
             total = sum(float(cells[header.index(k)]) for k in terms)
             assert abs(total - float(cells[header.index("train/reward_per_step")])) < 1e-3
+        if cells[header.index("eval/reward_per_step")]:  # the milestone rollout's, likewise
+            total = sum(float(cells[header.index(f"eval/{k}")]) for k in terms)
+            assert abs(total - float(cells[header.index("eval/reward_per_step")])) < 1e-3
     losses = [r.split(",")[header.index("loss/value")] for r in rows[1:]]
     assert [v for v in losses if v] and all(np.isfinite(float(v)) for v in losses if v)
     runs_lib.plot_curves(run_dir, run_dir / "curves.png")
