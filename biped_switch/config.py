@@ -137,7 +137,8 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         reward_per_step_max=5.4,  # ... of the best possible (3*0.8 + 1 + 1 + 0.5 + 0.5)
         min_progress=0.0,  # and mean progress_frac >= this (0 disables)
         max_fell=0.25,  # and at most this fraction of evaluation episodes fell (1 disables)
-        regress_fell=0.6,  # one notch back when more than this fraction fell (1 disables)
+        regress_fell=0.6,  # one notch back when more than this fraction fell (1 disables) ...
+        regress_patience=2,  # ... in this many evaluations in a row (session 8; 1 = at once)
         difficulty_step=0.1,
         guide_step=0.1,
         guide_min_step=0.025,  # below 2 * guide_step, notches halve down to this (0.1, 0.05,

@@ -12,7 +12,10 @@ It also steps back one notch when most evaluation episodes fall (`regress_fell`)
 boundaries if need be (pushes 0 -> guides 0.025, guides 1 -> terrain), as legged_gym's terrain
 curriculum moves a robot that fails down a level. Session 7 found why this is needed: with a 5 s
 evaluation that met about one artifact, jumps and stairs had annealed their guides to 0 while
-every 20 s training episode still fell at the first or second artifact.
+every 20 s training episode still fell at the first or second artifact. A step back waits for
+`regress_patience` such evaluations in a row (`strikes` counts them): in session 7 the first check
+after an advance often fell badly and the next one recovered at the same level (gaps stepped
+0.2 -> 0.3 four times after one check each, jumps 0.025 -> 0.05 twice, stairs pushes 0.6 -> 0.5).
 
 The guides' last notches are finer: below 2 * guide_step each notch halves the scale, down to
 `guide_min_step` (0.1 -> 0.05 -> 0.025 -> 0). Jumps at guides 0.1 fell in 12-27% of its
@@ -37,16 +40,23 @@ class CurriculumState(NamedTuple):
     difficulty: float | jnp.ndarray = 0.0
     guide_scale: float | jnp.ndarray = 1.0
     push_scale: float | jnp.ndarray = 0.0
+    strikes: int | jnp.ndarray = 0  # evaluations in a row that fell more than regress_fell
 
     def as_dict(self) -> dict:
         return {"stage": int(self.stage), "stage_name": STAGES[int(self.stage)],
                 "difficulty": float(self.difficulty), "guide_scale": float(self.guide_scale),
-                "push_scale": float(self.push_scale)}
+                "push_scale": float(self.push_scale), "strikes": int(self.strikes)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "CurriculumState":
+        # checkpoints before session 8 have no strikes
         return cls(int(d["stage"]), float(d["difficulty"]), float(d["guide_scale"]),
-                   float(d["push_scale"]))
+                   float(d["push_scale"]), int(d.get("strikes", 0)))
+
+    def levels(self) -> tuple:
+        """What the environment sees; a change here restarts the episodes under way."""
+        return (int(self.stage), float(self.difficulty), float(self.guide_scale),
+                float(self.push_scale))
 
 
 def milestone(reward_per_step, progress_frac, cfg=None, fell_frac=0.0):
@@ -68,10 +78,14 @@ def regressed(fell_frac, cfg=None):
 def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None,
            fell_frac=0.0) -> CurriculumState:
     """One notch forward on a milestone, one back when more than `regress_fell` of the
-    evaluation episodes fell, else no change; pure and jittable."""
+    evaluation episodes fell in `regress_patience` evaluations in a row, else no change; pure and
+    jittable."""
     cfg = cfg or default_curriculum_config()
     hit = milestone(reward_per_step, progress_frac, cfg, fell_frac)
-    back = regressed(fell_frac, cfg) & ~hit
+    bad = regressed(fell_frac, cfg) & ~hit
+    strikes = jnp.where(bad, jnp.asarray(cs.strikes) + 1, 0)
+    back = bad & (strikes >= cfg.regress_patience)
+    strikes = jnp.where(back, 0, strikes)
     stage = jnp.asarray(cs.stage)
     in_terrain, in_guides, in_pushes = stage == 0, stage == 1, stage == 2
     at_full = cs.difficulty >= 1.0 - 1e-6
@@ -99,4 +113,4 @@ def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None,
     difficulty = jnp.where((back & in_terrain) | to_terrain,
                            jnp.maximum(cs.difficulty - cfg.difficulty_step, 0.0), difficulty)
     new_stage = jnp.where(to_guides, 1, jnp.where(to_terrain, 0, new_stage))
-    return CurriculumState(new_stage, difficulty, guide, push)
+    return CurriculumState(new_stage, difficulty, guide, push, strikes)

@@ -193,8 +193,10 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
                  f"distance {ev['distance_m']:.2f} m; curriculum {cs.as_dict()['stage_name']} "
                  f"d={float(cs.difficulty):.2f} -> {new_cs.as_dict()['stage_name']} "
                  f"d={float(new_cs.difficulty):.2f} guide={float(new_cs.guide_scale):.2f} "
-                 f"push={float(new_cs.push_scale):.2f}; saved {path}")
-        if new_cs != cs:  # episodes under way were drawn at the old levels: start afresh
+                 f"push={float(new_cs.push_scale):.2f}"
+                 f"{f' (fell > regress_fell: strike {int(new_cs.strikes)}/{cfg.curriculum.regress_patience})' if int(new_cs.strikes) else ''}"
+                 f"; saved {path}")
+        if new_cs.levels() != cs.levels():  # episodes under way were drawn at the old levels: start afresh
             rng, k = jax.random.split(rng)
             envs = trainer.reset_envs(k, curr_array(new_cs))
         cs = new_cs

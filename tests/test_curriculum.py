@@ -8,6 +8,8 @@ from biped_switch import curriculum as cl
 from biped_switch.config import default_curriculum_config
 
 CFG = default_curriculum_config()
+CFG1 = default_curriculum_config()  # steps back after one bad evaluation
+CFG1.regress_patience = 1
 HIT = CFG.reward_milestone * CFG.reward_per_step_max  # 0.65 * 5.4 = 3.51 reward per step
 MISS = HIT - 0.01
 
@@ -37,7 +39,7 @@ def test_many_falls_step_back_across_stages():
     cs = cl.CurriculumState(2, 1.0, 0.0, 0.2)
     trace = []
     for _ in range(25):
-        cs = cl.update(cs, 4.5, 1.0, CFG, fell_frac=0.61)
+        cs = cl.update(cs, 4.5, 1.0, CFG1, fell_frac=0.61)
         trace.append((int(cs.stage), round(float(cs.difficulty), 6), round(float(cs.guide_scale), 6),
                       round(float(cs.push_scale), 6)))
     assert trace[:6] == [(2, 1.0, 0.0, 0.1), (2, 1.0, 0.0, 0.0), (1, 1.0, 0.025, 0.0),
@@ -57,8 +59,25 @@ def test_between_the_thresholds_holds():
         assert (int(cs.stage), float(cs.guide_scale)) == (1, pytest.approx(0.5))
     cs = cl.update(cs0, 4.5, 1.0, CFG, fell_frac=0.2)
     assert float(cs.guide_scale) == pytest.approx(0.4)
-    cs = cl.update(cs0, 1.0, 1.0, CFG, fell_frac=0.9)
+    cs = cl.update(cs0, 1.0, 1.0, CFG1, fell_frac=0.9)
     assert float(cs.guide_scale) == pytest.approx(0.6)
+
+
+def test_a_step_back_waits_for_patience():
+    """With regress_patience 2, one bad evaluation only counts a strike; a second in a row steps
+    back and clears it; a good evaluation (a hold or a milestone) clears it too."""
+    assert CFG.regress_patience == 2
+    cs = cl.update(cl.CurriculumState(1, 1.0, 0.2, 0.0), 1.0, 1.0, CFG, fell_frac=0.9)
+    assert (float(cs.guide_scale), int(cs.strikes)) == (pytest.approx(0.2), 1)
+    held = cl.update(cs, 3.0, 1.0, CFG, fell_frac=0.4)  # between the thresholds
+    assert (float(held.guide_scale), int(held.strikes)) == (pytest.approx(0.2), 0)
+    hit = cl.update(cs, 4.5, 1.0, CFG, fell_frac=0.1)
+    assert (float(hit.guide_scale), int(hit.strikes)) == (pytest.approx(0.1), 0)
+    cs = cl.update(cs, 1.0, 1.0, CFG, fell_frac=0.9)
+    assert (float(cs.guide_scale), int(cs.strikes)) == (pytest.approx(0.3), 0)
+    # the next bad one is a first strike again at the new level
+    cs = cl.update(cs, 1.0, 1.0, CFG, fell_frac=0.9)
+    assert (float(cs.guide_scale), int(cs.strikes)) == (pytest.approx(0.3), 1)
 
 
 def test_coarse_guide_notches_when_min_step_is_the_step():
@@ -66,6 +85,7 @@ def test_coarse_guide_notches_when_min_step_is_the_step():
     cfg.guide_min_step = cfg.guide_step
     cs = cl.update(cl.CurriculumState(1, 1.0, 0.1, 0.0), HIT + 0.1, 1.0, cfg)
     assert float(cs.guide_scale) == 0.0
+    cfg.regress_patience = 1
     cs = cl.update(cl.CurriculumState(1, 1.0, 0.0, 0.0), 1.0, 1.0, cfg, fell_frac=1.0)
     assert float(cs.guide_scale) == pytest.approx(0.1)
 
@@ -73,7 +93,9 @@ def test_coarse_guide_notches_when_min_step_is_the_step():
 def test_regress_can_be_disabled():
     cfg = default_curriculum_config()
     cfg.regress_fell = 1.0
-    cs = cl.update(cl.CurriculumState(2, 1.0, 0.0, 0.3), 1.0, 1.0, cfg, fell_frac=1.0)
+    cs = cl.CurriculumState(2, 1.0, 0.0, 0.3)
+    for _ in range(3):
+        cs = cl.update(cs, 1.0, 1.0, cfg, fell_frac=1.0)
     assert float(cs.push_scale) == pytest.approx(0.3)
 
 
@@ -125,7 +147,8 @@ def test_progress_gate():
 def test_jit_matches_python():
     f = jax.jit(lambda cs, r, fell: cl.update(cs, r, 1.0, CFG, fell_frac=fell))
     cs_py, cs_jit = cl.CurriculumState(), cl.CurriculumState()
-    seq = [(HIT, 0.0), (MISS, 0.0)] * 3 + [(HIT, 0.0)] * 15 + [(MISS, 0.9)] * 4 + [(HIT, 0.1)] * 3
+    seq = ([(HIT, 0.0), (MISS, 0.0)] * 3 + [(HIT, 0.0)] * 15 + [(MISS, 0.9)] * 5
+           + [(MISS, 0.4), (MISS, 0.9)] + [(HIT, 0.1)] * 3)
     for r, fell in seq:
         cs_py = cl.update(cs_py, r, 1.0, CFG, fell_frac=fell)
         cs_jit = f(cs_jit, r, fell)
@@ -133,10 +156,12 @@ def test_jit_matches_python():
 
 
 def test_dict_round_trip():
-    cs = cl.CurriculumState(2, 1.0, 0.0, 0.4)
+    cs = cl.CurriculumState(2, 1.0, 0.0, 0.4, 1)
     d = cs.as_dict()
-    assert d["stage_name"] == "pushes"
+    assert d["stage_name"] == "pushes" and d["strikes"] == 1
     assert cl.CurriculumState.from_dict(d) == cs
+    del d["strikes"]  # a checkpoint from before session 8
+    assert cl.CurriculumState.from_dict(d) == cs._replace(strikes=0)
 
 
 def test_curve_series_after_a_restart():
