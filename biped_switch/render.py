@@ -2,6 +2,8 @@
 
     python -m biped_switch.render --policy stairs [--init stand] [--seconds 8] [--out clip.gif]
     python -m biped_switch.render --scripted --kind mixed        # the scripted standing controller
+    python -m biped_switch.render --policy stairs --seconds 70 --track-seed 10000 \
+        --size 360x240 --every 3 --colors 64 --out models/policies/stairs_stand/stairs_stand_success.gif
 
 The rollout runs in the environment (physics `--backend`, and the env overrides the policy was
 trained with); its joint trajectory is then replayed on a CPU MuJoCo model compiled with that
@@ -87,7 +89,11 @@ def frames(qpos: np.ndarray, boxes: np.ndarray, width: int = 480, height: int = 
     return out
 
 
-def write(images: list[np.ndarray], path: pathlib.Path, fps: float) -> None:
+def write(images: list[np.ndarray], path: pathlib.Path, fps: float, colors: int = 256) -> None:
+    """A GIF with `colors` palette entries (64 keeps a 70 s trial near 3 MB at 360 x 240 and
+    every 3rd step: the size to commit), or an MP4."""
+    if not 2 <= colors <= 256:
+        raise ValueError(f"colors={colors}: a GIF palette holds 2-256 colours")
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".mp4":
         import imageio.v2 as imageio  # lazy: optional, and needs imageio-ffmpeg
@@ -96,8 +102,9 @@ def write(images: list[np.ndarray], path: pathlib.Path, fps: float) -> None:
         return
     from PIL import Image  # lazy: only a GIF needs it
 
-    pics = [Image.fromarray(im) for im in images]
-    pics[0].save(path, save_all=True, append_images=pics[1:], duration=int(1000 / fps), loop=0)
+    pics = [Image.fromarray(im).quantize(colors) if colors < 256 else Image.fromarray(im)
+            for im in images]
+    pics[0].save(path, save_all=True, append_images=pics[1:], duration=round(1000 / fps), loop=0)  # ms; a GIF keeps 10 ms units
 
 
 def main(argv=None) -> int:
@@ -116,7 +123,16 @@ def main(argv=None) -> int:
     p.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"),
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     p.add_argument("--out", default=None)
+    p.add_argument("--size", default="480x320", help="frame WIDTHxHEIGHT in pixels")
+    p.add_argument("--every", type=int, default=2, help="draw every n-th control step (50 Hz)")
+    p.add_argument("--colors", type=int, default=256, help="GIF palette size (2-256)")
     a = p.parse_args(argv)
+    try:
+        width, height = (int(v) for v in a.size.lower().split("x"))
+    except ValueError:
+        p.error(f"--size {a.size!r}: expected WIDTHxHEIGHT, e.g. 360x240")
+    if a.every < 1 or not 2 <= a.colors <= 256:
+        p.error(f"--every {a.every} must be >= 1 and --colors {a.colors} within 2-256")
     if not a.scripted and a.policy is None:
         p.error("give --policy NAME or --scripted")
     _gl_default()  # before anything imports mujoco: then env, runs and policies may be imported
@@ -136,9 +152,9 @@ def main(argv=None) -> int:
                            backend=a.backend, **overrides)
     act = None if ckpt is None else load_policy(ckpt, env)[0]
     qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
-    fps = 1.0 / (2 * env.dt)
+    fps = 1.0 / (a.every * env.dt)
     out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")
-    write(frames(qpos, boxes), out, fps)
+    write(frames(qpos, boxes, width, height, a.every), out, fps, a.colors)
     print(f"wrote {out} ({len(qpos)} steps, track seed {track_seed}, {env.backend} backend on "
           f"{jax.devices()[0].platform}); "
           f"final metrics {metrics}")

@@ -104,3 +104,22 @@ def test_main_runs_the_policy_in_the_env_it_was_trained_for(tmp_path, monkeypatc
     assert seen["qpos"].shape == (6, env.biped.mj_model.nq)
     assert out.stat().st_size > 0
     assert env_lib.BACKENDS == ("mujoco", "mjx")  # render's --backend choices spell these out
+
+
+def test_gif_palette_and_frame_rate(tmp_path):
+    """`colors` quantises each frame to at most that many colours (the committed GIFs use 64), at
+    the given frame rate; a palette outside 2-256 is named."""
+    from PIL import Image
+
+    rng = np.random.default_rng(0)
+    ims = [rng.integers(0, 256, (24, 32, 3), dtype=np.uint8) for _ in range(3)]
+    path = tmp_path / "clip.gif"
+    render.write(ims, path, fps=50 / 3, colors=16)
+    with Image.open(path) as g:
+        assert g.n_frames == 3 and g.size == (32, 24)
+        assert g.info["duration"] == 60  # ms: round(1000 / (50 / 3)); int() gave 59, stored as 50
+        for i in range(3):
+            g.seek(i)
+            assert len(g.convert("RGB").getcolors(4096)) <= 16
+    with pytest.raises(ValueError, match="colors=300"):
+        render.write(ims, path, fps=10, colors=300)
