@@ -138,7 +138,8 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         min_progress=0.0,  # and mean progress_frac >= this (0 disables)
         max_fell=0.25,  # and at most this fraction of evaluation episodes fell (1 disables)
         regress_fell=0.6,  # one notch back when more than this fraction fell (1 disables) ...
-        regress_patience=2,  # ... in this many evaluations in a row (session 8; 1 = at once)
+        regress_patience=4,  # ... in this many evaluations in a row (1 = at once): a policy
+        # needs a few chunks at a new level (session 8, curriculum.py)
         difficulty_step=0.1,
         guide_step=0.1,
         guide_min_step=0.025,  # below 2 * guide_step, notches halve down to this (0.1, 0.05,

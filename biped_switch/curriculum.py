@@ -16,6 +16,9 @@ every 20 s training episode still fell at the first or second artifact. A step b
 `regress_patience` such evaluations in a row (`strikes` counts them): in session 7 the first check
 after an advance often fell badly and the next one recovered at the same level (gaps stepped
 0.2 -> 0.3 four times after one check each, jumps 0.025 -> 0.05 twice, stairs pushes 0.6 -> 0.5).
+With a patience of 2, gaps at guides 0.1 fell 92-100% of four checks over two visits while its
+training episodes went further each chunk (mean distance 1.7 -> 4.0 m, then 3.1 -> 5.3 m): it was
+adapting when the step back came, so the patience is 4.
 
 The guides' last notches are finer: below 2 * guide_step each notch halves the scale, down to
 `guide_min_step` (0.1 -> 0.05 -> 0.025 -> 0). Jumps at guides 0.1 fell in 12-27% of its
