@@ -167,6 +167,8 @@ def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
         n_tracks=256,
         episode_length=1000,  # control steps (20 s)
         log_every=10,  # iterations between progress lines
+        stop_when_done=True,  # stop when the curriculum finishes (one more milestone at full
+        # pushes), before total_timesteps: `make train-all` runs the suite one policy at a time
         warm_start="",  # a checkpoint directory whose parameters start this run (e.g. walk's)
         # torque actions: the side-by-side on walk (README, Training) favoured them over pd
         env=config_dict.create(backend="auto", action="torque", pd_offset="gait", phase_obs=True),

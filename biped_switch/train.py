@@ -119,6 +119,10 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     rng, k = jax.random.split(rng)
     envs = trainer.reset_envs(k, curr_array(cs))
     progress, chunks = {}, 0
+    if done and cfg.stop_when_done:
+        print_fn(f"[{cfg.policy}/{cfg.init}] the curriculum finished by step {step:,}: nothing to "
+                 f"train (--keep-training trains on to --total-steps)")
+        return prog
     while step < cfg.total_timesteps and (max_chunks is None or chunks < max_chunks):
         t_chunk, chunk_start = time.perf_counter(), step
         chunk_end = min(step + cfg.chunk_timesteps, cfg.total_timesteps)
@@ -201,6 +205,10 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
             envs = trainer.reset_envs(k, curr_array(new_cs))
         cs = new_cs
         chunks += 1
+        if done and cfg.stop_when_done:
+            print_fn(f"[{cfg.policy}/{cfg.init}] the curriculum finished at step {step:,} "
+                     f"({wall_s / 3600:.2f} h): training stops")
+            break
     return progress
 
 
@@ -235,6 +243,8 @@ def main(argv=None) -> int:
     p.add_argument("--total-steps", type=int, default=None)
     p.add_argument("--chunk-steps", type=int, default=None)
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks")
+    p.add_argument("--keep-training", action="store_true",
+                   help="train on to --total-steps after the curriculum finishes (default: stop)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="runs", help="runs go to OUT/<policy>_<init>")
     p.add_argument("--name", default=None, help="run folder name (default <policy>_<init>)")
@@ -267,6 +277,7 @@ def main(argv=None) -> int:
         cfg.env.pd_offset = a.pd_offset
     if a.warm_start:
         cfg.warm_start = a.warm_start
+    cfg.stop_when_done = not a.keep_training
     run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
     if a.learning_rate is not None:
         if not a.learning_rate > 0:

@@ -177,17 +177,26 @@ def test_loaded_policy_acts_like_the_trainer(trained):
 
 
 def test_the_push_stage_ends_with_a_milestone_at_full_pushes(tmp_path, monkeypatch):
-    """curriculum_done: pushes at 1 and one more milestone there; not before."""
+    """curriculum_done: pushes at 1 and one more milestone there; not before. Training then stops
+    short of total_timesteps (and a rerun trains nothing) unless stop_when_done is off."""
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")  # not the real walk
     cfg = _tiny_cfg("walk")
-    cfg.total_timesteps = 256
+    cfg.total_timesteps = 128 * 6
     cfg.start.update(stage=2, difficulty=1.0, guide_scale=0.0, push_scale=0.9)
     cfg.curriculum.reward_milestone = 0.0
     prog = train_lib.train(cfg, tmp_path / "walk_stand", max_chunks=1, print_fn=lambda *a: None)
     assert prog["curriculum"]["push_scale"] == pytest.approx(1.0) and not prog["curriculum_done"]
-    prog = train_lib.train(cfg, tmp_path / "walk_stand", print_fn=lambda *a: None)
+    lines = []
+    prog = train_lib.train(cfg, tmp_path / "walk_stand", print_fn=lines.append)
     assert prog["curriculum_before"]["push_scale"] == pytest.approx(1.0) and prog["curriculum_done"]
+    assert prog["step"] == 256 and "the curriculum finished at step 256" in lines[-1]
     assert not any("unfinished" in n for n in runs_lib.run_notes(tmp_path / "walk_stand"))
+    lines = []
+    again = train_lib.train(cfg, tmp_path / "walk_stand", print_fn=lines.append)
+    assert again["step"] == 256 and "nothing to train" in lines[-1]
+    cfg.stop_when_done = False
+    on = train_lib.train(cfg, tmp_path / "walk_stand", max_chunks=1, print_fn=lambda *a: None)
+    assert on["step"] == 384 and on["curriculum_done"]
 
 
 def test_unknown_policy_and_preset_are_named():
