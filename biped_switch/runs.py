@@ -22,6 +22,7 @@ import json
 import math
 import pathlib
 import shutil
+import time
 
 import numpy as np
 import orbax.checkpoint as ocp
@@ -235,6 +236,26 @@ def restore_committed(run_dir: pathlib.Path, print_fn=print) -> None:
             else:
                 shutil.copy2(item, dst)
         print_fn(f"no checkpoint under {run_dir}: resuming from the committed {committed}")
+
+
+def train_log(run_dir: pathlib.Path, print_fn=print):
+    """A print function that also appends each line to <run_dir>/train.log, the run's progress
+    history across sessions (`commit_run` commits it). A run folder without one continues its
+    committed copy's. Starts the session's part with a dated header."""
+    path = pathlib.Path(run_dir) / "train.log"
+    committed = COMMITTED_DIR / pathlib.Path(run_dir).name / "train.log"
+    if not path.exists() and committed.exists():
+        shutil.copy2(committed, path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as f:
+        f.write(f"# {time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime())} UTC: a session starts\n")
+
+    def say(line: str) -> None:
+        print_fn(line)
+        with path.open("a") as f:
+            f.write(f"{line}\n")
+
+    return say
 
 
 def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None) -> pathlib.Path:

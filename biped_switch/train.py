@@ -73,6 +73,9 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     `on_restore(train_state)` is called with the state a resume restored (a hook for tests)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     runs_lib.restore_committed(run_dir, print_fn)
+    writer = jax.process_index() == 0  # multi-host: one process writes
+    if writer:
+        print_fn = runs_lib.train_log(run_dir, print_fn)
     logger = runs_lib.Logger(run_dir)
     ckpt = runs_lib.latest_checkpoint(run_dir)
     env = env_fn(cfg)
@@ -96,7 +99,6 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         warm, prog = restore(pathlib.Path(cfg.warm_start), ts)
         ts = ts._replace(params=warm.params, norm=warm.norm)  # fresh optimiser moments
         print_fn(f"warm start from {cfg.warm_start} (step {prog['step']:,})")
-    writer = jax.process_index() == 0  # multi-host: one process writes
     if writer:
         (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
     if cfg.policy == "walk" and int(cs.stage) == 0:

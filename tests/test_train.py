@@ -116,6 +116,10 @@ def test_resume_restores_optimiser_normaliser_and_curriculum(trained):
     assert second["curriculum_before"]["difficulty"] == pytest.approx(0.1)  # restored, not reset
     assert second["curriculum"]["difficulty"] == pytest.approx(0.2)
     assert second["wall_s"] > trained["first"]["wall_s"]
+    # train.log keeps both sessions' progress lines, each part under a dated header
+    log = (trained["dir"] / "train.log").read_text().splitlines()
+    assert sum(ln.endswith("UTC: a session starts") for ln in log) == 2
+    assert [ln for ln in log if not ln.startswith("# ")] == trained["lines"]
 
 
 def test_metrics_log_and_curves(trained):
@@ -150,6 +154,7 @@ def test_committed_copy_resumes_a_fresh_machine(trained, tmp_path, monkeypatch):
     assert out == committed / "gaps_stand"
     assert [p.name for p in (out / "checkpoints").iterdir()] == [f"{256:012d}"]  # only the latest
     assert (out / "curves.png").exists() and (out / "config.json").exists()
+    assert (out / "train.log").read_text() == (trained["dir"] / "train.log").read_text()
     cfg = trained["cfg"]
     cfg.total_timesteps = 256  # already there: nothing to train, but it must find the run
     lines = []
@@ -157,6 +162,8 @@ def test_committed_copy_resumes_a_fresh_machine(trained, tmp_path, monkeypatch):
     assert any("resuming from the committed" in ln for ln in lines)
     assert runs_lib.latest_checkpoint(tmp_path / "runs" / "gaps_stand").name == f"{256:012d}"
     assert prog == {}  # no chunk ran: the goal was already reached
+    log = (tmp_path / "runs" / "gaps_stand" / "train.log").read_text().splitlines()
+    assert sum(ln.endswith("a session starts") for ln in log) == 3  # the committed log goes on
 
 
 def test_loaded_policy_acts_like_the_trainer(trained):
