@@ -107,6 +107,24 @@ def write(images: list[np.ndarray], path: pathlib.Path, fps: float, colors: int 
     pics[0].save(path, save_all=True, append_images=pics[1:], duration=round(1000 / fps), loop=0)  # ms; a GIF keeps 10 ms units
 
 
+def contact_sheet(images: list[np.ndarray], path: pathlib.Path, n: int = 24, cols: int = 6) -> None:
+    """`n` frames spread evenly over the clip, in a grid, as one PNG: a whole trial at a glance,
+    to look for sliding, tunnelling or flying without playing the GIF."""
+    from PIL import Image  # lazy, as in write()
+
+    if not images:
+        raise ValueError("contact_sheet: no frames")
+    idx = np.linspace(0, len(images) - 1, min(n, len(images))).round().astype(int)
+    h, w = images[0].shape[:2]
+    rows = -(-len(idx) // cols)
+    sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
+    for j, i in enumerate(idx):
+        r, c = divmod(j, cols)
+        sheet[r * h:(r + 1) * h, c * w:(c + 1) * w] = images[i][..., :3]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(sheet).save(path)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.render", description=__doc__.split("\n")[0])
     p.add_argument("--policy", default=None, help="walk, jumps, gaps or stairs (trained)")
@@ -126,6 +144,8 @@ def main(argv=None) -> int:
     p.add_argument("--size", default="480x320", help="frame WIDTHxHEIGHT in pixels")
     p.add_argument("--every", type=int, default=2, help="draw every n-th control step (50 Hz)")
     p.add_argument("--colors", type=int, default=256, help="GIF palette size (2-256)")
+    p.add_argument("--sheet", default=None, metavar="PNG",
+                   help="also write 24 frames spread over the clip as one contact-sheet PNG")
     a = p.parse_args(argv)
     try:
         width, height = (int(v) for v in a.size.lower().split("x"))
@@ -154,7 +174,10 @@ def main(argv=None) -> int:
     qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
     fps = 1.0 / (a.every * env.dt)
     out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")
-    write(frames(qpos, boxes, width, height, a.every), out, fps, a.colors)
+    images = frames(qpos, boxes, width, height, a.every)
+    write(images, out, fps, a.colors)
+    if a.sheet:
+        contact_sheet(images, pathlib.Path(a.sheet))
     print(f"wrote {out} ({len(qpos)} steps, track seed {track_seed}, {env.backend} backend on "
           f"{jax.devices()[0].platform}); "
           f"final metrics {metrics}")

@@ -123,3 +123,16 @@ def test_gif_palette_and_frame_rate(tmp_path):
             assert len(g.convert("RGB").getcolors(4096)) <= 16
     with pytest.raises(ValueError, match="colors=300"):
         render.write(ims, path, fps=10, colors=300)
+
+
+def test_contact_sheet_spreads_frames_over_the_clip(tmp_path):
+    """Frame i is filled with value i: the sheet's tiles are the first, evenly spaced and last
+    frames, in reading order, and empty tiles stay white."""
+    from PIL import Image
+
+    ims = [np.full((4, 6, 3), i, np.uint8) for i in range(11)]
+    render.contact_sheet(ims, tmp_path / "s.png", n=5, cols=3)
+    sheet = np.asarray(Image.open(tmp_path / "s.png"))
+    assert sheet.shape == (8, 18, 3)
+    tiles = [int(sheet[r * 4, c * 6, 0]) for r in range(2) for c in range(3)]
+    assert tiles == [0, 2, 5, 8, 10, 255]  # linspace(0, 10, 5) rounded; one tile left white
