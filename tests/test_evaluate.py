@@ -182,7 +182,9 @@ def _fake_ckpt(run_dir, step=1):
     (ck / "progress.json").write_text("{}")
 
 
-def test_available_methods_names_what_is_missing(tmp_path):
+def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
+    # only these fakes count: not the policies committed under models/policies/ (walk_random is)
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
     runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
     _fake_ckpt(runs / "walk_stand")
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
