@@ -57,9 +57,9 @@ class CurriculumState(NamedTuple):
                    float(d["push_scale"]), int(d.get("strikes", 0)))
 
     def levels(self) -> tuple:
-        """What the environment sees; a change here restarts the episodes under way."""
-        return (int(self.stage), float(self.difficulty), float(self.guide_scale),
-                float(self.push_scale))
+        """What the environment sees (its traced difficulty, guide_scale, push_scale); neither
+        the stage nor the strikes reach it, so only a change here restarts episodes under way."""
+        return (self.difficulty, self.guide_scale, self.push_scale)
 
 
 def milestone(reward_per_step, progress_frac, cfg=None, fell_frac=0.0):

@@ -104,7 +104,8 @@ def write(images: list[np.ndarray], path: pathlib.Path, fps: float, colors: int 
 
     pics = [Image.fromarray(im).quantize(colors) if colors < 256 else Image.fromarray(im)
             for im in images]
-    pics[0].save(path, save_all=True, append_images=pics[1:], duration=round(1000 / fps), loop=0)  # ms; a GIF keeps 10 ms units
+    # duration [ms], rounded: a GIF keeps 10 ms units, and int() made 60 ms (every 3rd step) 50
+    pics[0].save(path, save_all=True, append_images=pics[1:], duration=round(1000 / fps), loop=0)
 
 
 def contact_sheet(images: list[np.ndarray], path: pathlib.Path, n: int = 24, cols: int = 6) -> None:

@@ -106,7 +106,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         cs = cs._replace(difficulty=1.0)
 
     def curr_array(c):
-        return jnp.asarray([c.difficulty, c.guide_scale, c.push_scale], jnp.float32)
+        return jnp.asarray(c.levels(), jnp.float32)
 
     @jax.jit
     def evaluate(params, norm, rng, curr):
@@ -194,15 +194,16 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
             runs_lib.save_ppo(run_dir, step, ts, progress)
             logger.log(step, {f"eval/{k}": v for k, v in ev.items()} | {"wall_s": wall_s} | {
                 f"curriculum/{k}": v for k, v in new_cs._asdict().items()})
+        strike = (f" (fell > regress_fell: strike {int(new_cs.strikes)}/"
+                  f"{cfg.curriculum.regress_patience})" if int(new_cs.strikes) else "")
         print_fn(f"[{cfg.policy}/{cfg.init}] chunk done at step {step:,}: eval reward/step "
                  f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}, success {ev['success']:.2f}, "
                  f"distance {ev['distance_m']:.2f} m; curriculum {cs.as_dict()['stage_name']} "
                  f"d={float(cs.difficulty):.2f} -> {new_cs.as_dict()['stage_name']} "
                  f"d={float(new_cs.difficulty):.2f} guide={float(new_cs.guide_scale):.2f} "
-                 f"push={float(new_cs.push_scale):.2f}"
-                 f"{f' (fell > regress_fell: strike {int(new_cs.strikes)}/{cfg.curriculum.regress_patience})' if int(new_cs.strikes) else ''}"
-                 f"; saved {path}")
-        if new_cs.levels() != cs.levels():  # episodes under way were drawn at the old levels: start afresh
+                 f"push={float(new_cs.push_scale):.2f}{strike}; saved {path}")
+        if not np.array_equal(curr_array(new_cs), curr_array(cs)):
+            # episodes under way were drawn at the old levels: start afresh
             rng, k = jax.random.split(rng)
             envs = trainer.reset_envs(k, curr_array(new_cs))
         cs = new_cs

@@ -228,7 +228,7 @@ def test_demo_horizon_lets_the_target_speed_finish():
 def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
     """A found policy with an unfinished curriculum is named with its stage; a finished one is
     not; a run short of its step goal alone is not flagged (the curriculum decides)."""
-    from biped_switch import demo, runs as runs_lib
+    from biped_switch import demo
 
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
     runs = tmp_path / "runs"
@@ -248,7 +248,6 @@ def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
 def test_demo_runs_end_to_end_on_the_pipeline_check(tmp_path, monkeypatch):
     """`make demo` at a tiny size: table, Fig. 5 and summary written (about 6 min on 2 cores)."""
     from biped_switch import demo
-    from biped_switch import runs as runs_lib
 
     # no committed policies either: the demo must fall back to the pipeline check
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "no_committed")
