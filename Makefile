@@ -55,17 +55,21 @@ TRAIN_ARGS ?=
 train: $(STAMP)
 	$(PY) -m biped_switch.train --policy $(POLICY) --init $(INIT) $(TRAIN_ARGS)
 
-# The whole suite, resuming whatever is there. A new stand-init artifact policy starts from the
-# stand walk policy (WARM=walk_stand; WARM= trains it from scratch); random-init policies start
-# from scratch (the no-overlap ablation must not inherit the stand policies' behaviour).
+# The whole suite, resuming whatever is there. A new stand-init artifact policy, and the end-to-end
+# `mixed` policy, start from the stand walk policy (WARM=walk_stand; WARM= trains them from
+# scratch), so the composed suite and the end-to-end baseline share one prior. The random-init
+# walk policy trains from scratch and seeds the random-init artifact policies (RWARM=walk_random;
+# RWARM= trains them from scratch): the no-overlap ablation never inherits the stand policies.
 WARM ?= walk_stand
+RWARM ?= walk_random
 train-all: $(STAMP)
 	$(PY) -m biped_switch.train --policy walk --init stand $(TRAIN_ARGS) || exit 1
 	for p in jumps gaps stairs; do \
 	  $(PY) -m biped_switch.train --policy $$p --init stand $(if $(WARM),--warm-start $(WARM)) $(TRAIN_ARGS) || exit 1; done
-	for p in walk jumps gaps stairs; do \
-	  $(PY) -m biped_switch.train --policy $$p --init random $(TRAIN_ARGS) || exit 1; done
-	$(PY) -m biped_switch.train --policy mixed --init stand $(TRAIN_ARGS)
+	$(PY) -m biped_switch.train --policy walk --init random $(TRAIN_ARGS) || exit 1
+	for p in jumps gaps stairs; do \
+	  $(PY) -m biped_switch.train --policy $$p --init random $(if $(RWARM),--warm-start $(RWARM)) $(TRAIN_ARGS) || exit 1; done
+	$(PY) -m biped_switch.train --policy mixed --init stand $(if $(WARM),--warm-start $(WARM)) $(TRAIN_ARGS)
 
 # Offscreen rendering on a CPU host: OSMesa (Debian's libosmesa6), installed with apt (as root)
 # unless already there (then this returns at once). A GPU host uses EGL.

@@ -41,7 +41,8 @@ action (0 during the pause, when the PD hold acts instead).
 Guided curriculum hooks (traced values in `state.info`, set at reset, kept across steps):
 `guide_scale` scales the scripted gait's joint PD torques (qfrc_applied) and the CoM-steadying
 wrench on the pelvis (xfrc_applied), see gait.py; `push_scale` scales random horizontal pushes of
-up to `max_push_N` lasting `push_duration_s`, every `push_interval_s` on average. Both default to 0.
+up to `max_push_N` (each drawn uniformly below, or all at, that: `push_magnitude`) lasting
+`push_duration_s`, every `push_interval_s` on average. Both default to 0.
 
 Termination: a fall (h < fall_height_m, |pitch| or |roll| > fall_tilt_rad, or the CoM below
 fall_z_m, i.e. into a gap or off the track) or reaching the finish line (success).
@@ -80,6 +81,7 @@ BACKENDS = ("mujoco", "mjx")
 BACKEND_CHOICES = ("auto",) + BACKENDS  # what every CLI's --backend accepts
 BACKEND_HELP = "physics backend (auto: mujoco on a CPU, mjx on an accelerator)"
 ACTIONS = ("torque", "pd")
+PUSH_MAGNITUDES = ("uniform", "max")  # curriculum.push_magnitude: how each push force is drawn
 HOLD_KP_PER_GEAR, HOLD_KD_RATIO = 3.0, 0.05  # standing PD hold: e.g. knee 750 Nm/rad, 37.5 Nm s/rad
 # info keys that Brax's training wrappers (EpisodeWrapper, AutoResetWrapper) own: the env must not
 # write them (an env counter named "steps" doubled Brax's and halved every training episode).
@@ -144,6 +146,11 @@ class BipedEnv(Env):
             raise ValueError(f"unknown action mode {self.cfg.action!r}; expected one of {ACTIONS}")
         if self.cfg.pd_offset not in ("gait", "stand"):
             raise ValueError(f"unknown pd_offset {self.cfg.pd_offset!r}; expected 'gait' or 'stand'")
+        mag = self.curriculum_cfg.get("push_magnitude", "uniform")  # absent in old run configs
+        if mag not in PUSH_MAGNITUDES:
+            raise ValueError(f"unknown curriculum push_magnitude {mag!r}; expected one of "
+                             f"{PUSH_MAGNITUDES}")
+        self._push_uniform = mag == "uniform"
         self._backend = resolve_backend(self.cfg.backend)
         terrain.check_difficulty(self.cfg.difficulty)
         self.biped = biped or model_lib.build_model(self.model_cfg)
@@ -369,13 +376,17 @@ class BipedEnv(Env):
         return data
 
     def _push(self, info):
-        """Random pushes: start one with probability dt / interval when none is running."""
+        """Random pushes: start one with probability dt / interval when none is running, in a
+        random horizontal direction, its force [N] up to push_scale * max_push_N (uniform) or
+        exactly that ("max"), `curriculum.push_magnitude`."""
         c = self.curriculum_cfg
-        rng, k_start, k_dir = jax.random.split(info["rng"], 3)
+        rng, k_start, k_dir, k_mag = jax.random.split(info["rng"], 4)
         start = ((jax.random.uniform(k_start) < self.dt / c.push_interval_s)
                  & (info["push_left_s"] <= 0.0) & (info["push_scale"] > 0.0))
         angle = jax.random.uniform(k_dir, maxval=2 * jnp.pi)
-        new = info["push_scale"] * c.max_push_N * jnp.array([jnp.cos(angle), jnp.sin(angle), 0.0])
+        frac = jax.random.uniform(k_mag) if self._push_uniform else 1.0
+        new = (info["push_scale"] * frac * c.max_push_N
+               * jnp.array([jnp.cos(angle), jnp.sin(angle), 0.0]))
         running = info["push_left_s"] > 0.0
         force = jnp.where(start, new, jnp.where(running, info["push_force"], 0.0))
         left = jnp.where(start, c.push_duration_s, jnp.maximum(info["push_left_s"] - self.dt, 0.0))

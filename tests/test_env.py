@@ -14,6 +14,7 @@ from biped_switch import env as env_lib
 from biped_switch import heightmap as hm
 from biped_switch import model as model_lib
 from biped_switch import terrain
+from biped_switch.config import default_curriculum_config
 
 from conftest import B, DIFFICULTIES, MJX_TORQUE, TRACK_IDS, actions, index
 from helpers import edge_mask, quat_to_pitch_roll_yaw, terrain_height_np
@@ -589,3 +590,53 @@ def test_blame_kind_hand_cases():
     for x, want in cases.items():
         got = int(env_lib.blame_kind(jnp.float32(x), x0, x1, kind, 0.9, 1.0))
         assert got == want, (x, got, want)
+
+
+def _pushes(e, n=20_000, scale=0.5):
+    """`e._push` from rest on n keys: (started (n,), force (n, 3) [N], time left (n,) [s])."""
+    info = {"rng": jax.random.split(jax.random.PRNGKey(3), n),
+            "push_left_s": jnp.zeros(n), "push_scale": jnp.full(n, scale, jnp.float32),
+            "push_force": jnp.zeros((n, 3))}
+    _, force, left = jax.jit(jax.vmap(e._push))(info)
+    return np.asarray(left) > 0, np.asarray(force), np.asarray(left)
+
+
+def test_push_draws(env):
+    """From rest a push starts with probability dt / interval (0.02 / 2 = 1%: about 200 of
+    20,000, sd 14), horizontal, in every direction; "uniform" forces spread over (0, 0.5 * 150 N]
+    with mean 37.5 N (sd of the mean ~1.5 N), "max" ones are all 75 N. A running push keeps its
+    force and counts down; push_scale 0 never pushes."""
+    c = env.curriculum_cfg
+    assert (c.push_magnitude, c.max_push_N, c.push_interval_s, env.dt) == ("uniform", 150.0, 2.0,
+                                                                           pytest.approx(0.02))
+    started, force, left = _pushes(env)
+    assert 140 <= started.sum() <= 260
+    np.testing.assert_allclose(left[started], c.push_duration_s)
+    np.testing.assert_array_equal(force[~started], 0.0)
+    np.testing.assert_array_equal(force[:, 2], 0.0)
+    mag = np.linalg.norm(force[started], axis=1)
+    assert mag.max() <= 75.0 + 1e-3 and mag.min() < 10.0 and mag.max() > 65.0
+    assert abs(mag.mean() - 37.5) < 6.0
+    angle = np.arctan2(force[started, 1], force[started, 0])
+    assert np.histogram(angle, bins=4, range=(-np.pi, np.pi))[0].min() > 20  # all four quadrants
+
+    cfg_max = default_curriculum_config()
+    cfg_max.push_magnitude = "max"
+    e_max = env_lib.make_env("walk", n_tracks=1, curriculum_cfg=cfg_max, **MJX_TORQUE)
+    started_m, force_m, _ = _pushes(e_max)
+    np.testing.assert_array_equal(started_m, started)  # the same keys start the same pushes
+    np.testing.assert_allclose(np.linalg.norm(force_m[started_m], axis=1), 75.0, rtol=1e-5)
+
+    running = {"rng": jax.random.PRNGKey(0), "push_left_s": jnp.float32(0.1),
+               "push_scale": jnp.float32(0.5), "push_force": jnp.array([10.0, -5.0, 0.0])}
+    _, f, t = env._push(running)
+    np.testing.assert_allclose(f, [10.0, -5.0, 0.0])
+    assert float(t) == pytest.approx(0.1 - env.dt)
+    assert not _pushes(env, scale=0.0)[0].any()
+
+
+def test_push_magnitude_error():
+    c = default_curriculum_config()
+    c.push_magnitude = "huge"
+    with pytest.raises(ValueError, match="push_magnitude 'huge'"):
+        env_lib.make_env(n_tracks=1, curriculum_cfg=c)
