@@ -127,8 +127,10 @@ def _fake_run(run_dir, wall_s, device="cuda:0", step=1000, **extra):
                                                   **extra}))
 
 
-def test_retrain_cost_from_logs(tmp_path):
+def test_retrain_cost_from_logs(tmp_path, monkeypatch):
     runs, res = tmp_path / "runs", tmp_path / "results"
+    # only these fake runs: not the committed ones (models/policies/mixed_stand, ...)
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
     _fake_run(runs / "jumps_stand", 1800.0)
     _fake_run(runs / "gaps_stand", 3600.0)
     _fake_run(runs / "stairs_stand", 5400.0)  # mean policy: 1 h
