@@ -144,10 +144,11 @@ def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
 
 
 def _in_training(runs) -> list[str]:
-    """'<policy>: <why>' for each found stand-init policy whose run is not finished
-    (`runs.run_notes`: short of its step goal is not counted, an unfinished curriculum is)."""
+    """'<policy>: <why>' for each found stand-init policy whose run is not finished, the
+    end-to-end `mixed` one included (`runs.run_notes`: short of its step goal is not counted, an
+    unfinished curriculum is)."""
     out = []
-    for n in pol.POLICY_NAMES:
+    for n in pol.POLICY_NAMES + ("mixed",):
         ckpt = runs_lib.find_policy(n, "stand", pathlib.Path(runs))
         if ckpt is None:
             continue

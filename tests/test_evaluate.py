@@ -228,8 +228,9 @@ def test_demo_horizon_lets_the_target_speed_finish():
 
 
 def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
-    """A found policy with an unfinished curriculum is named with its stage; a finished one is
-    not; a run short of its step goal alone is not flagged (the curriculum decides)."""
+    """A found policy (the end-to-end `mixed` one too) with an unfinished curriculum is named with
+    its stage; a finished one is not; a run short of its step goal alone is not flagged (the
+    curriculum decides)."""
     from biped_switch import demo
 
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
@@ -242,8 +243,12 @@ def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
     _fake_run(runs / "gaps_stand", 60.0, total_steps=10**9, curriculum=cur | {
         "stage": 2, "stage_name": "pushes", "guide_scale": 0.0, "push_scale": 1.0},
         curriculum_done=True)
+    _fake_run(runs / "mixed_stand", 60.0, curriculum={  # the end-to-end policy is named too
+        "stage": 0, "stage_name": "terrain", "difficulty": 0.6, "guide_scale": 1.0,
+        "push_scale": 0.0}, curriculum_done=False)
     assert demo._in_training(runs) == ["jumps: curriculum unfinished (guides d=1.0 guide=0.05)",
-                                       "stairs: push stage unfinished (push=0.5)"]
+                                       "stairs: push stage unfinished (push=0.5)",
+                                       "mixed: curriculum unfinished (terrain d=0.6 guide=1.0)"]
 
 
 @pytest.mark.slow
