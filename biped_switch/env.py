@@ -146,11 +146,10 @@ class BipedEnv(Env):
             raise ValueError(f"unknown action mode {self.cfg.action!r}; expected one of {ACTIONS}")
         if self.cfg.pd_offset not in ("gait", "stand"):
             raise ValueError(f"unknown pd_offset {self.cfg.pd_offset!r}; expected 'gait' or 'stand'")
-        mag = self.curriculum_cfg.get("push_magnitude", "uniform")  # absent in old run configs
-        if mag not in PUSH_MAGNITUDES:
-            raise ValueError(f"unknown curriculum push_magnitude {mag!r}; expected one of "
+        if self.curriculum_cfg.push_magnitude not in PUSH_MAGNITUDES:
+            raise ValueError(f"unknown curriculum push_magnitude "
+                             f"{self.curriculum_cfg.push_magnitude!r}; expected one of "
                              f"{PUSH_MAGNITUDES}")
-        self._push_uniform = mag == "uniform"
         self._backend = resolve_backend(self.cfg.backend)
         terrain.check_difficulty(self.cfg.difficulty)
         self.biped = biped or model_lib.build_model(self.model_cfg)
@@ -384,7 +383,7 @@ class BipedEnv(Env):
         start = ((jax.random.uniform(k_start) < self.dt / c.push_interval_s)
                  & (info["push_left_s"] <= 0.0) & (info["push_scale"] > 0.0))
         angle = jax.random.uniform(k_dir, maxval=2 * jnp.pi)
-        frac = jax.random.uniform(k_mag) if self._push_uniform else 1.0
+        frac = jax.random.uniform(k_mag) if c.push_magnitude == "uniform" else 1.0
         new = (info["push_scale"] * frac * c.max_push_N
                * jnp.array([jnp.cos(angle), jnp.sin(angle), 0.0]))
         running = info["push_left_s"] > 0.0

@@ -101,14 +101,15 @@ def read_config(run_dir: pathlib.Path, committed: bool = False) -> dict:
 
 
 def run_config(run_dir: pathlib.Path) -> config_dict.ConfigDict:
-    """The train config a PPO run was made with (its config.json over today's defaults)."""
+    """The train config a PPO run was made with (its config.json over today's defaults: a key
+    the run predates keeps its default, one no longer known is dropped)."""
     saved = json.loads((pathlib.Path(run_dir) / "config.json").read_text())
     cfg = default_train_config()
-    for section in ("env", "network", "ppo"):
+    for section in ("env", "network", "ppo", "eval", "curriculum"):
         for k, v in saved.get(section, {}).items():
             if k in cfg[section]:
                 cfg[section][k] = tuple(v) if isinstance(v, list) else v
-    for k in ("policy", "init", "episode_length"):
+    for k in ("policy", "init", "episode_length", "n_tracks"):
         if k in saved:
             cfg[k] = saved[k]
     return cfg

@@ -54,6 +54,13 @@ def train_env(cfg) -> env_lib.BipedEnv:
                             n_tracks=cfg.n_tracks, seed=TRAIN_TRACK_SEED + cfg.seed, **dict(cfg.env))
 
 
+def milestone_rollout(env, act, rng, eval_cfg, levels) -> dict:
+    """The curriculum check's episodes (`rollout`): `eval_cfg.n_envs` of `eval_cfg.horizon_steps`
+    at the curriculum's levels (difficulty, guide_scale, push_scale; traced ok)."""
+    return rollout(env, act, rng, n_envs=eval_cfg.n_envs, horizon=eval_cfg.horizon_steps,
+                   reset_args=dict(zip(("difficulty", "guide_scale", "push_scale"), levels)))
+
+
 def restore(ckpt: pathlib.Path, template: "ppo.TrainState"):
     """(TrainState, progress) of a checkpoint: parameters, optimiser moments and normaliser, in
     the structure of `template` (a fresh `Trainer.init` of the same config)."""
@@ -113,9 +120,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         def act(obs, key):
             return trainer.policy(params, norm, obs, key, True)
 
-        return rollout(env, act, rng, n_envs=cfg.eval.n_envs, horizon=cfg.eval.horizon_steps,
-                       reset_args={"difficulty": curr[0], "guide_scale": curr[1],
-                                   "push_scale": curr[2]})
+        return milestone_rollout(env, act, rng, cfg.eval, curr)
 
     rng = jax.random.PRNGKey(cfg.seed + 7919 * (step // trainer.steps_per_iteration + 1))
     rng, k = jax.random.split(rng)

@@ -3,8 +3,9 @@ training tracks at full difficulty with no guides (what the push-stage milestone
 
     python scripts/push_falls.py runs/walk_stand --scales 0 0.5 0.75 1 [--magnitude max]
 
-Prints one JSON line per level: the fall fraction of `--episodes` 20 s episodes, their reward
-per step, and the fall chance per push it implies (1 - (1 - fell)^(1 / pushes per episode)).
+Prints one JSON line per level: the fall fraction of the curriculum check's episodes
+(`train.milestone_rollout`, the run's eval config: 64 of 20 s), their reward per step, and the
+fall chance per push it implies (1 - (1 - fell)^(1 / pushes per episode)).
 Written to size the push stage (README, tuning log, session 9).
 """
 
@@ -24,7 +25,7 @@ from biped_switch import runs as runs_lib  # noqa: E402
 from biped_switch import train as train_lib  # noqa: E402
 from biped_switch.env import PUSH_MAGNITUDES  # noqa: E402
 from biped_switch.policies import load_policy  # noqa: E402
-from biped_switch.rollout import rollout, summarize  # noqa: E402
+from biped_switch.rollout import summarize  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -33,8 +34,6 @@ def main(argv=None) -> int:
     p.add_argument("--scales", type=float, nargs="+", default=[0.0, 0.5, 0.75, 1.0])
     p.add_argument("--magnitude", default=None, choices=PUSH_MAGNITUDES,
                    help="how each push force is drawn (default: the run's config)")
-    p.add_argument("--episodes", type=int, default=64)
-    p.add_argument("--horizon-steps", type=int, default=1000, help="control steps (1000 = 20 s)")
     p.add_argument("--seed", type=int, default=1)
     a = p.parse_args(argv)
     run = pathlib.Path(a.run)
@@ -46,21 +45,20 @@ def main(argv=None) -> int:
     if ckpt is None:
         raise SystemExit(f"{run}: no checkpoint")
     policy, prog = load_policy(ckpt, env)
-    go = jax.jit(lambda rng, s: rollout(env, policy, rng, n_envs=a.episodes,
-                                        horizon=a.horizon_steps,
-                                        reset_args={"difficulty": 1.0, "guide_scale": 0.0,
-                                                    "push_scale": s}))
-    c = env.curriculum_cfg
+    # the push stage's levels: full difficulty, no guides
+    go = jax.jit(lambda rng, s: train_lib.milestone_rollout(env, policy, rng, cfg.eval,
+                                                            (1.0, 0.0, s)))
+    c, horizon = env.curriculum_cfg, cfg.eval.horizon_steps
     # a push starts at rate 1 / interval whenever none runs (the pause too), so one per
     # interval + duration on average
-    pushes = a.horizon_steps * env.dt / (c.push_interval_s + c.push_duration_s)
+    pushes = horizon * env.dt / (c.push_interval_s + c.push_duration_s)
     for s in a.scales:
         t0 = time.perf_counter()
-        out = summarize(go(jax.random.PRNGKey(a.seed), jnp.float32(s)), a.horizon_steps)
+        out = summarize(go(jax.random.PRNGKey(a.seed), jnp.float32(s)), horizon)
         fell = out["fell"]
         print(json.dumps({"run": run.name, "step": prog["step"], "magnitude": c.push_magnitude,
                           "push_scale": s, "max_push_N": s * c.max_push_N,
-                          "episodes": a.episodes, "fell": round(fell, 3),
+                          "episodes": cfg.eval.n_envs, "fell": round(fell, 3),
                           "fall_per_push": round(1 - (1 - fell) ** (1 / pushes), 4) if s else None,
                           "reward_per_step": round(out["reward_per_step"], 3),
                           "distance_m": round(out["distance_m"], 2),

@@ -296,3 +296,20 @@ def test_a_resume_keeps_the_runs_lowered_learning_rate(tmp_path, monkeypatch):
     run.mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({"ppo": {"learning_rate": 1e-4}}))
     assert train_lib.saved_learning_rate(run) == pytest.approx(1e-4)
+
+
+def test_run_config_reads_back_what_the_run_was_made_with(tmp_path):
+    """A run's config.json comes back over today's defaults: the CPU preset's track bank and
+    curriculum-check size, a changed curriculum value; a key the run predates (push_magnitude,
+    session 9) keeps today's default; an unknown saved key is ignored."""
+    saved = default_train_config("cpu")
+    saved.curriculum.max_push_N = 100.0
+    d = json.loads(saved.to_json_best_effort())
+    del d["curriculum"]["push_magnitude"]
+    d["curriculum"]["no_longer_a_key"] = 1
+    (tmp_path / "config.json").write_text(json.dumps(d))
+    cfg = runs_lib.run_config(tmp_path)
+    assert (cfg.n_tracks, cfg.eval.n_envs, cfg.eval.horizon_steps) == (32, 64, 1000)
+    assert default_train_config().n_tracks == 256 and default_train_config().eval.n_envs == 256
+    assert cfg.curriculum.max_push_N == 100.0 and cfg.curriculum.push_magnitude == "uniform"
+    assert "no_longer_a_key" not in cfg.curriculum
