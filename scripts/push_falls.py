@@ -1,7 +1,7 @@
 """How often a trained policy falls under the push stage's pushes, per push level, on its own
 training tracks at full difficulty with no guides (what the push-stage milestone sees).
 
-    python scripts/push_falls.py runs/walk_stand --scales 0 0.5 0.75 1 [--magnitude max]
+    python scripts/push_falls.py runs/walk_stand --scales 0 0.5 0.75 1 [--magnitude max] [--interval 5]
 
 Prints one JSON line per level: the fall fraction of the curriculum check's episodes
 (`train.milestone_rollout`, the run's eval config: 64 of 20 s), their reward per step, and the
@@ -34,12 +34,18 @@ def main(argv=None) -> int:
     p.add_argument("--scales", type=float, nargs="+", default=[0.0, 0.5, 0.75, 1.0])
     p.add_argument("--magnitude", default=None, choices=PUSH_MAGNITUDES,
                    help="how each push force is drawn (default: the run's config)")
+    p.add_argument("--interval", type=float, default=None,
+                   help="mean time between pushes [s] (default: the run's config)")
     p.add_argument("--seed", type=int, default=1)
     a = p.parse_args(argv)
     run = pathlib.Path(a.run)
     cfg = runs_lib.run_config(run)
     if a.magnitude:
         cfg.curriculum.push_magnitude = a.magnitude
+    if a.interval is not None:
+        if a.interval <= 0:
+            raise SystemExit(f"--interval {a.interval}: the mean time between pushes must be > 0 s")
+        cfg.curriculum.push_interval_s = a.interval
     env = train_lib.train_env(cfg)
     ckpt = runs_lib.latest_checkpoint(run)
     if ckpt is None:
@@ -57,6 +63,7 @@ def main(argv=None) -> int:
         out = summarize(go(jax.random.PRNGKey(a.seed), jnp.float32(s)), horizon)
         fell = out["fell"]
         print(json.dumps({"run": run.name, "step": prog["step"], "magnitude": c.push_magnitude,
+                          "interval_s": c.push_interval_s,
                           "push_scale": s, "max_push_N": s * c.max_push_N,
                           "episodes": cfg.eval.n_envs, "fell": round(fell, 3),
                           "fall_per_push": round(1 - (1 - fell) ** (1 / pushes), 4) if s else None,
