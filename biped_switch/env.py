@@ -150,6 +150,9 @@ class BipedEnv(Env):
             raise ValueError(f"unknown curriculum push_magnitude "
                              f"{self.curriculum_cfg.push_magnitude!r}; expected one of "
                              f"{PUSH_MAGNITUDES}")
+        if not self.curriculum_cfg.push_interval_s > 0.0:
+            raise ValueError(f"curriculum push_interval_s must be > 0 s (the mean time between "
+                             f"pushes), got {self.curriculum_cfg.push_interval_s}")
         self._backend = resolve_backend(self.cfg.backend)
         terrain.check_difficulty(self.cfg.difficulty)
         self.biped = biped or model_lib.build_model(self.model_cfg)

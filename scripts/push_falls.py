@@ -1,7 +1,8 @@
 """How often a trained policy falls under the push stage's pushes, per push level, on its own
 training tracks at full difficulty with no guides (what the push-stage milestone sees).
 
-    python scripts/push_falls.py runs/walk_stand --scales 0 0.5 0.75 1 [--magnitude max] [--interval 5]
+    python scripts/push_falls.py runs/walk_stand --scales 0 0.5 0.75 1 [--magnitude max]
+        [--interval 5]
 
 Prints one JSON line per level: the fall fraction of the curriculum check's episodes
 (`train.milestone_rollout`, the run's eval config: 64 of 20 s), their reward per step, and the
@@ -42,9 +43,7 @@ def main(argv=None) -> int:
     cfg = runs_lib.run_config(run)
     if a.magnitude:
         cfg.curriculum.push_magnitude = a.magnitude
-    if a.interval is not None:
-        if a.interval <= 0:
-            raise SystemExit(f"--interval {a.interval}: the mean time between pushes must be > 0 s")
+    if a.interval is not None:  # the env rejects an interval <= 0
         cfg.curriculum.push_interval_s = a.interval
     env = train_lib.train_env(cfg)
     ckpt = runs_lib.latest_checkpoint(run)

@@ -640,3 +640,11 @@ def test_push_magnitude_error():
     c.push_magnitude = "huge"
     with pytest.raises(ValueError, match="push_magnitude 'huge'"):
         env_lib.make_env(n_tracks=1, curriculum_cfg=c)
+
+
+@pytest.mark.parametrize("interval_s", [0.0, -2.0])
+def test_push_interval_error(interval_s):
+    c = default_curriculum_config()
+    c.push_interval_s = interval_s
+    with pytest.raises(ValueError, match=f"push_interval_s must be > 0 s .*got {interval_s}"):
+        env_lib.make_env(n_tracks=1, curriculum_cfg=c)
