@@ -145,6 +145,8 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         guide_min_step=0.025,  # below 2 * guide_step, notches halve down to this (0.1, 0.05,
         # 0.025, 0): jumps fell 12-27% at guides 0.1 and 100% at 0 (= guide_step disables)
         push_step=0.1,
+        push_plateau_steps=10_000_000,  # the push stage ends when its highest level has not risen
+        # for this many env steps (0: only a milestone at push 1 ends it; curriculum.py)
         max_push_N=150.0,  # push force at push_scale 1
         push_duration_s=0.2,
         push_interval_s=2.0,  # mean time between pushes

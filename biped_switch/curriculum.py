@@ -23,6 +23,14 @@ adapting when the step back came, so the patience is 4.
 The guides' last notches are finer: below 2 * guide_step each notch halves the scale, down to
 `guide_min_step` (0.1 -> 0.05 -> 0.025 -> 0). Jumps at guides 0.1 fell in 12-27% of its
 evaluations and at 0 in 100%, twice, so the step to 0 was a cliff (session 7).
+The push stage can also end on a plateau (`push_plateau_steps`, session 11; 0 disables): when its
+highest level has not risen for that many env steps. The paper gives no push magnitude and says
+the gradual pushes "allowed for greater final disturbances", so the level a policy holds is a
+result, not a given. Under uniform pushes the longest wait before a rise was 8.5M steps (gaps
+0.5 -> 0.6, session 10), while stairs (at 1.0), jumps (0.8) and gaps (0.6) then held their
+levels for 4-12M steps with the milestone checks falling 36-64% and no trend (README, tuning
+log). `push_held` is the level a policy last met a milestone at: the highest level below its
+plateau. This host-side bookkeeping lives in progress.json, not in the traced state.
 The state is a small pytree of scalars: it is logged, saved with every checkpoint, restored on
 resume, and enters the environment as traced values, so a stage change never recompiles.
 """
@@ -117,3 +125,36 @@ def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None,
                            jnp.maximum(cs.difficulty - cfg.difficulty_step, 0.0), difficulty)
     new_stage = jnp.where(to_guides, 1, jnp.where(to_terrain, 0, new_stage))
     return CurriculumState(new_stage, difficulty, guide, push, strikes)
+
+
+def push_high_update(high: float, high_step: int, stage: int, push_scale: float,
+                     step: int) -> tuple[float, int]:
+    """The push stage's highest level so far and the env step it was first reached at."""
+    if int(stage) == 2 and float(push_scale) > high + 1e-6:
+        return float(push_scale), int(step)
+    return high, high_step
+
+
+def push_high_from_rows(rows) -> tuple[float, int]:
+    """`push_high_update` replayed over metrics.csv rows (checkpoints before session 11 did not
+    record it); rows without a curriculum column are skipped."""
+    high, high_step = 0.0, 0
+    for r in rows:
+        if r.get("curriculum/push_scale") not in (None, "") and r.get("curriculum/stage") not in (None, ""):
+            high, high_step = push_high_update(high, high_step, int(float(r["curriculum/stage"])),
+                                               float(r["curriculum/push_scale"]), int(float(r["step"])))
+    return high, high_step
+
+
+def push_plateaued(high: float, high_step: int, step: int, cfg=None) -> bool:
+    """True when the push stage's highest level has not risen for
+    `push_plateau_steps` env steps: the curriculum ends there (`push_held` is one notch below)."""
+    cfg = cfg or default_curriculum_config()
+    n = int(cfg.get("push_plateau_steps", 0))
+    return n > 0 and high > 1e-6 and step - high_step >= n
+
+
+def push_held(high: float, cfg=None) -> float:
+    """The highest push level a policy met a milestone at, given its plateau's highest level."""
+    cfg = cfg or default_curriculum_config()
+    return round(max(high - cfg.push_step, 0.0), 6)

@@ -148,11 +148,13 @@ def main(argv=None) -> int:
     if not rows:
         return 1
     out = _write_table(a.out, "table1", table1_markdown(rows),
-                       ["policy", "init", "trials", "checkpoint", "train_step", "speed_mps",
-                        "speed_lo", "speed_hi", "horizon_s", "track_seed", "backend"],
+                       ["policy", "init", "trials", "checkpoint", "train_step", "train_h",
+                        "curriculum_end", "push_held", "speed_mps", "speed_lo", "speed_hi",
+                        "horizon_s", "track_seed", "backend"],
                        [[r["policy"], r["init"], r["n"], r["checkpoint"], r["train_step"],
-                         r["speed_mps"], *r["speed_ci"], r["horizon_s"], r["track_seed"],
-                         r["backend"]] for r in rows],
+                         r["train_h"], r["curriculum_end"], r["push_held"], r["speed_mps"],
+                         *r["speed_ci"], r["horizon_s"], r["track_seed"], r["backend"]]
+                        for r in rows],
                        rows)
     (out / "table1.json").write_text(json.dumps(
         {"settings": vars(a), "rows": rows, "track_seed": a.track_seed,

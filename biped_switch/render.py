@@ -24,6 +24,7 @@ import pathlib
 import sys
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from biped_switch import terrain
@@ -37,20 +38,49 @@ def _gl_default() -> None:
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
 
-def record(env, act, seconds: float, seed: int = 0, track_id: int = 0):
-    """(qpos per control step (T, nq), boxes (C, 6), metrics) of one episode; `act` None = scripted."""
-    reset = jax.jit(lambda k: env.reset(k, track_id=track_id))
-    step = jax.jit(env.hold_step if act is None else
-                   (lambda s, k: env.step(s, act(s.obs[None], k)[0])))
-    state = reset(jax.random.PRNGKey(seed))
-    qpos, key = [np.asarray(state.pipeline_state.qpos)], jax.random.PRNGKey(seed + 1)
-    for _ in range(int(round(seconds / env.dt))):
-        key, k = jax.random.split(key)
-        state = step(state) if act is None else step(state, k)
-        qpos.append(np.asarray(state.pipeline_state.qpos))
-        if float(state.done) > 0:
-            break
-    return np.stack(qpos), np.asarray(state.info["boxes"]), {k: float(v) for k, v in state.metrics.items()}
+def record(env, act, seconds: float, seed: int = 0, track_id: int = 0, reset_key=None,
+           batch: int = 1):
+    """(qpos per control step (T, nq), boxes (C, 6), metrics) of one episode; `act` None = scripted.
+
+    `reset_key` (default PRNGKey(seed)) draws the initial state. A policy runs in the one
+    episode loop (`rollout.run_episodes`) on `batch` copies of the episode, and the first is
+    drawn: the policy's matmuls round differently at another batch size, and a trajectory is
+    chaotic enough that a track Table I (batch 100) fell on can succeed in a lone rollout, so a
+    replay of a Table I trial runs at Table I's batch (measured, session 11: stairs track
+    10,018 fell at 11.2 m in every copy at batch 100, and reached the finish at batch 1 and 4)."""
+    from biped_switch.rollout import reset_by_track, run_episodes
+
+    horizon = int(round(seconds / env.dt))
+    key = jax.random.PRNGKey(seed) if reset_key is None else reset_key
+    if act is None:  # the scripted stand: env.hold_step, no policy
+        reset = jax.jit(lambda k: env.reset(k, track_id=track_id))
+        step = jax.jit(env.hold_step)
+        state = reset(key)
+        qpos = [np.asarray(state.pipeline_state.qpos)]
+        for _ in range(horizon):
+            state = step(state)
+            qpos.append(np.asarray(state.pipeline_state.qpos))
+            if float(state.done) > 0:
+                break
+        return (np.stack(qpos), np.asarray(state.info["boxes"]),
+                {k: float(v) for k, v in state.metrics.items()})
+
+    def policy(carry, state, live, k):
+        return act(state.obs, k), carry, None
+
+    def trace(carry, aux, state, nxt, live):
+        return nxt.pipeline_state.qpos[0]
+
+    @jax.jit
+    def run(key, rng):
+        state = reset_by_track(env, jnp.stack([key] * batch), jnp.full((batch,), track_id, jnp.int32))
+        ep = run_episodes(env, state, horizon, policy, None, trace=trace, rng=rng)
+        return state.pipeline_state.qpos[0], state.info["boxes"][0], ep
+
+    q0, boxes, ep = jax.device_get(run(key, jax.random.PRNGKey(seed + 1)))
+    n = int(ep.length[0])  # live steps; the trace runs on past a fall
+    qpos = np.concatenate([np.asarray(q0)[None], np.asarray(ep.trace)[:n]])
+    return qpos, np.asarray(boxes), {k: float(v[0]) for k, v in ep.metrics.items()}
 
 
 def track_boxes(boxes: np.ndarray) -> np.ndarray:
@@ -138,6 +168,11 @@ def main(argv=None) -> int:
                    help=f"rng seed; the track's seed is {EVAL_TRACK_SEED:,} + this unless --track-seed")
     p.add_argument("--track-seed", type=int, default=None,
                    help="the track's seed (e.g. one of a Table I row's success_track_seeds)")
+    p.add_argument("--table1", default=None, metavar="JSON",
+                   help="replay a trial of this table1.json (with --trial): its track and initial state")
+    p.add_argument("--trial", type=int, default=None,
+                   help="the trial of --table1's row for --policy/--init (0-based; track seed = "
+                        "the row's track_seed + this)")
     # the choices are spelled out: importing env.BACKENDS here would import mujoco before _gl_default
     p.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"),
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
@@ -156,6 +191,23 @@ def main(argv=None) -> int:
         p.error(f"--every {a.every} must be >= 1 and --colors {a.colors} within 2-256")
     if not a.scripted and a.policy is None:
         p.error("give --policy NAME or --scripted")
+    if (a.table1 is None) != (a.trial is None):
+        p.error("--table1 JSON and --trial I go together")
+    reset_key, row = None, None
+    if a.table1 is not None:
+        import json
+
+        doc = json.loads(pathlib.Path(a.table1).read_text())
+        row = next((r for r in doc["rows"] if r["policy"] == a.policy and r["init"] == a.init), None)
+        if row is None:
+            p.error(f"{a.table1} has no {a.policy}/{a.init} row")
+        if not 0 <= a.trial < row["n"]:
+            p.error(f"--trial {a.trial}: {a.table1}'s {a.policy}/{a.init} row has trials 0-{row['n'] - 1}")
+        if a.track_seed is not None:
+            p.error("--track-seed and --table1: the trial sets the track")
+        a.track_seed = row["track_seed"] + a.trial
+        if a.backend == "auto":
+            a.backend = row.get("backend", "auto")
     _gl_default()  # before anything imports mujoco: then env, runs and policies may be imported
     from biped_switch import env as env_lib
     from biped_switch import runs as runs_lib
@@ -172,7 +224,15 @@ def main(argv=None) -> int:
     env = env_lib.make_env(kind, a.init, n_tracks=1, seed=track_seed,
                            backend=a.backend, **overrides)
     act = None if ckpt is None else load_policy(ckpt, env)[0]
-    qpos, boxes, metrics = record(env, act, a.seconds, a.seed)
+    if row is not None:
+        from biped_switch.table1 import trial_reset_key
+
+        s = doc["settings"]
+        reset_key = trial_reset_key(int(s["seed"]), int(s["batch"]), a.trial)
+        if str(ckpt) != row.get("checkpoint"):
+            print(f"note: {a.table1} ran {row.get('checkpoint')}; this renders {ckpt}", flush=True)
+    qpos, boxes, metrics = record(env, act, a.seconds, a.seed, reset_key=reset_key,
+                                  batch=1 if row is None else int(doc["settings"]["batch"]))
     fps = 1.0 / (a.every * env.dt)
     out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")
     images = frames(qpos, boxes, width, height, a.every)

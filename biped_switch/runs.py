@@ -148,6 +148,13 @@ class Logger:
             w.writeheader()
             w.writerows(rows)
 
+    def rows(self, until: int | None = None) -> list[dict]:
+        """The CSV rows logged so far (up to step `until`), oldest first."""
+        if not self.csv_path.exists():
+            return []
+        with self.csv_path.open() as f:
+            return [r for r in csv.DictReader(f) if until is None or float(r["step"]) <= until]
+
     def log(self, step: int, row: dict) -> None:
         row = {"step": step, **{k: (round(v, 5) if isinstance(v, float) else v) for k, v in row.items()}}
         new = not self.csv_path.exists()
@@ -318,7 +325,8 @@ def run_notes(run_dir, step_goal: bool = True) -> list[str]:
     It lies in a pipeline_check folder; its latest checkpoint is short of the step goal
     (progress.json's total_steps / total_env_steps, else config.json's); its curriculum is
     unfinished (guide forces on or difficulty below 1: progress.json's, else the last logged in
-    metrics.csv, for folders of copied logs); a DQN selector chose among stand-in policies."""
+    metrics.csv, for folders of copied logs); a DQN selector chose among stand-in policies.
+    A curriculum that ended on a push plateau is finished (Table I's curriculum cell says so)."""
     d = pathlib.Path(run_dir)
     notes = ["is a pipeline check"] if "pipeline_check" in d.resolve().parts else []
     ck = latest_checkpoint(d)

@@ -236,8 +236,17 @@ def lookup_table(dist_m, label, source, target: str, bin_m: float = 0.01, max_m:
     np.add.at(succ, (np.asarray(source), b), np.asarray(label, float))
     with np.errstate(invalid="ignore", divide="ignore"):
         rate = succ / count
-    best = np.full(P, np.nan)
-    for j in range(P):
+    return table_from_rates(rate, count, target, bin_m)
+
+
+def table_from_rates(rate, count, target: str, bin_m: float = 0.01) -> dict:
+    """`lookup_table`'s dict from its (P, nbins) rates and counts: the best bin per source. A
+    lookup JSON stores rates and counts, so a target swept in an earlier session (whose data
+    is gone) keeps its table when another target is swept."""
+    rate, count = np.asarray(rate, float), np.asarray(count, float)
+    nb = rate.shape[1]
+    best = np.full(rate.shape[0], np.nan)
+    for j in range(rate.shape[0]):
         if j == pol.POLICY_INDEX[target] or not np.any(count[j] > 0):
             continue
         r = np.where(count[j] > 0, rate[j], -1.0)[::-1]
@@ -524,8 +533,8 @@ def main(argv=None) -> int:
         p.error("--points and --batch must be >= 1")
     out = pathlib.Path(a.out)
     lookup_path = pathlib.Path(a.results) / f"lookup_{a.init}.json"
-    stored = (json.loads(lookup_path.read_text())["meta"].get("sweeps", {})
-              if lookup_path.exists() else {})
+    stored_doc = json.loads(lookup_path.read_text()) if lookup_path.exists() else {}
+    stored = stored_doc.get("meta", {}).get("sweeps", {})
     data, stats = {}, {}
     for target in a.targets:
         print(f"sweep {a.init}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
@@ -553,7 +562,18 @@ def main(argv=None) -> int:
             else:
                 stats[target] = st
     tables = tables_from_data(data, cfg)
-    meta = {"sweeps": stats, "policies": {k: d["meta"]["policies"] for k, d in data.items()}}
+    policies = {k: d["meta"]["policies"] for k, d in data.items()}
+    for target in terrain.ARTIFACT_KINDS:  # swept before, its data gone: keep its stored table
+        t = stored_doc.get("tables", {}).get(target)
+        if target not in tables and t is not None:
+            rate = [[np.nan if v is None else v for v in r] for r in t["rate"]]
+            tables[target] = table_from_rates(rate, t["count"], target, cfg.lookup_bin_m)
+            stats[target] = stored.get(target, {})
+            policies[target] = stored_doc["meta"].get("policies", {}).get(target)
+            print(f"lookup {a.init}/{target}: kept from {lookup_path} (its sweep data is not under "
+                  f"{out}/)", flush=True)
+    tables = {k: tables[k] for k in terrain.ARTIFACT_KINDS if k in tables}
+    meta = {"sweeps": stats, "policies": policies}
     doc = save_lookup(tables, a.init, pathlib.Path(a.results), meta)
     print("lookup table (best switch distance [m], active -> target):")
     for k, v in doc["best_m"].items():

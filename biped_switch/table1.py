@@ -82,12 +82,16 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
     results = []
     for start in range(0, trials, batch):
         ids = jax.numpy.arange(start, start + batch) % trials
-        results.append(jax.device_get(run(jax.random.PRNGKey(seed + start), track_ids=ids)))
+        results.append(jax.device_get(run(batch_key(seed, start), track_ids=ids)))
     merged = {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
     out = episode_table(merged)
     out.update(speed_table(merged, env.dt, pause_s))
     out.update(policy=policy, init=init, checkpoint=str(ckpt), train_step=progress["step"],
-               curriculum=progress["curriculum"], backend=env.backend, track_seed=track_seed,
+               curriculum=progress["curriculum"], curriculum_done=progress.get("curriculum_done"),
+               curriculum_end=progress.get("curriculum_end"), push_held=progress.get("push_held"),
+               train_h=float(progress["wall_s"]) / 3600.0 if "wall_s" in progress else None,
+               warm_start=progress.get("warm_start") or "", backend=env.backend,
+               track_seed=track_seed,
                env_overrides=overrides, horizon_s=horizon_s,
                horizon_from=horizon_from, finish_m_max=finish_m,
                timed_out_pct=100.0 * float((np.asarray(merged["done"]) < 0.5).mean()),
@@ -97,17 +101,52 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
     return out
 
 
-def curriculum_cell(c: dict) -> str:
-    """A checkpoint's curriculum as 'stage d=.. g=.. p=..' (fine guide levels kept: 0.025)."""
-    return (f"{c.get('stage_name', '?')} d={c.get('difficulty', math.nan):.1f} "
+def batch_key(seed: int, start: int) -> jax.Array:
+    """The rng of the batch of trials that begins at trial `start` (`rollout` splits it)."""
+    return jax.random.PRNGKey(seed + start)
+
+
+def trial_reset_key(seed: int, batch: int, trial: int) -> jax.Array:
+    """The reset key Table I gave trial `trial` (on track track_seed + trial): `rollout` splits
+    its batch key into (reset, run) and the reset key into one per env. The policy is
+    deterministic and pushes are off, so this key and the track replay the trial exactly
+    (`render --table1 PATH --trial I`)."""
+    start = (trial // batch) * batch
+    k_reset = jax.random.split(batch_key(seed, start))[0]
+    return jax.random.split(k_reset, batch)[trial - start]
+
+
+def failure_track_seeds(row: dict) -> list[int]:
+    """The track seeds of a Table I row's trials that did not succeed."""
+    ok = set(row.get("success_track_seeds", ()))
+    return [row["track_seed"] + i for i in range(row["n"]) if row["track_seed"] + i not in ok]
+
+
+def curriculum_cell(c: dict, r: dict | None = None) -> str:
+    """A checkpoint's curriculum as 'stage d=.. g=.. p=..' (fine guide levels kept: 0.025), and
+    how it ended when the row says (a push plateau holds the level below: curriculum.py)."""
+    cell = (f"{c.get('stage_name', '?')} d={c.get('difficulty', math.nan):.1f} "
             f"g={round(c.get('guide_scale', math.nan), 3)} p={round(c.get('push_scale', 0.0), 3)}")
+    r = r or {}
+    if r.get("curriculum_end") == "push plateau":
+        cell += f", done on a push plateau (holds p={round(float(r['push_held']), 3)})"
+    elif r.get("curriculum_done"):
+        cell += ", done"
+    elif r.get("curriculum_done") is False:
+        cell += ", in training"
+    return cell
+
+
+def hours_cell(r: dict) -> str:
+    """Training hours on the run's own hardware (progress.json's wall_s), '-' when unknown."""
+    return "-" if r.get("train_h") is None else f"{r['train_h']:.2f}"
 
 
 def table1_markdown(rows: list[dict]) -> str:
     lines = ["| policy | init | trials | % total dist. (95% CI) | % success (95% CI) | paper dist. | "
-             "paper success | trained steps | curriculum | speed m/s (95% CI) | horizon s | "
-             "track seed | backend |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "paper success | trained steps | train h | curriculum | speed m/s (95% CI) | "
+             "horizon s | track seed | backend |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         pd, ps = paper_row(r)
         c = r["curriculum"]
@@ -116,7 +155,7 @@ def table1_markdown(rows: list[dict]) -> str:
         horizon = f"{r['horizon_s']:g}" if r.get("horizon_s") is not None else "-"
         lines.append(
             f"| {r['policy']} | {r['init']} | {r['n']} | {dist_success_cells(r)} | {pd} | {ps} | "
-            f"{r['train_step']:,} | {curriculum_cell(c)} | "
+            f"{r['train_step']:,} | {hours_cell(r)} | {curriculum_cell(c, r)} | "
             f"{speed} | {horizon} | {r.get('track_seed', '-')} | {r.get('backend', '-')} |")
     return "\n".join(lines)
 
@@ -131,7 +170,8 @@ def paper_row(r: dict):
 def table1_rows(doc: dict):
     """(headers, rows) of a table1.json as the notebook prints it: ours beside the paper's."""
     headers = ["policy", "init", "trials", "% dist. (95% CI)", "paper % dist.",
-               "% success (95% CI)", "paper % success", "% fell", "trained steps", "curriculum"]
+               "% success (95% CI)", "paper % success", "% fell", "trained steps", "train h",
+               "curriculum"]
     rows = []
     for r in doc["rows"]:
         pd, ps = paper_row(r)
@@ -139,7 +179,7 @@ def table1_rows(doc: dict):
         rows.append([r["policy"], r["init"], r["n"], pct_ci_cell(r["distance_pct"], r.get("distance_ci")),
                      pd, pct_ci_cell(r["success_pct"], r.get("success_ci")),
                      ps, f"{r.get('fell_pct', math.nan):.1f}", f"{r.get('train_step', 0):,}",
-                     curriculum_cell(c)])
+                     hours_cell(r), curriculum_cell(c, r)])
     return headers, rows
 
 

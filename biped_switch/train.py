@@ -89,6 +89,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     trainer = ppo.make_train(cfg, env)
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
     step, wall_s, compile_s, done = 0, 0.0, None, False
+    high, high_step, end, held = 0.0, 0, None, None  # the push stage's plateau (curriculum.py)
     cs = curr_lib.CurriculumState(**cfg.start)
     if ckpt is not None:
         ts, prog = restore(ckpt, ts)
@@ -97,6 +98,11 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         step, wall_s = prog["step"], prog["wall_s"]
         cs = curr_lib.CurriculumState.from_dict(prog["curriculum"])
         done = bool(prog.get("curriculum_done", False))
+        end, held = prog.get("curriculum_end"), prog.get("push_held")
+        if "push_high" in prog:
+            high, high_step = float(prog["push_high"]), int(prog["push_high_step"])
+        else:  # checkpoints before session 11
+            high, high_step = curr_lib.push_high_from_rows(logger.rows(until=step))
         # a resumed run keeps the provenance of its start (the warm-start checkpoint, if any)
         cfg.warm_start = cfg.warm_start or runs_lib.read_config(run_dir).get("warm_start", "")
         logger.drop_after(step)
@@ -187,13 +193,24 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
                             and curr_lib.milestone(ev["reward_per_step"], ev["progress_frac"],
                                                    cfg.curriculum, fell_frac=ev["fell"]))
         new_cs = curr_lib.CurriculumState(*(np.asarray(v).item() for v in new_cs))
+        if done and end is None:
+            end, held = "full pushes", 1.0
+        high, high_step = curr_lib.push_high_update(high, high_step, int(new_cs.stage),
+                                                    float(new_cs.push_scale), step)
+        if not done and curr_lib.push_plateaued(high, high_step, step, cfg.curriculum):
+            done, end, held = True, "push plateau", curr_lib.push_held(high, cfg.curriculum)
+            print_fn(f"[{cfg.policy}/{cfg.init}] the push stage has not risen above {high:.2f} "
+                     f"for {step - high_step:,} env steps (push_plateau_steps "
+                     f"{int(cfg.curriculum.push_plateau_steps):,}): the curriculum ends on a "
+                     f"plateau, holding push {held:.2f}")
         wall_s += train_s + eval_s
         progress = {"step": step, "wall_s": wall_s, "chunk_train_s": train_s, "chunk_eval_s": eval_s,
                     "env_steps_per_s": (step - chunk_start) / train_s, "compile_s": compile_s, "eval": ev,
                     "curriculum_before": cs.as_dict(), "curriculum": new_cs.as_dict(),
                     "backend": env.backend, "device": str(jax.devices()[0]),
                     "n_devices": jax.device_count(), "total_steps": int(cfg.total_timesteps),
-                    "curriculum_done": done, "warm_start": cfg.warm_start}
+                    "curriculum_done": done, "curriculum_end": end, "push_held": held,
+                    "push_high": high, "push_high_step": high_step, "warm_start": cfg.warm_start}
         path = run_dir / "checkpoints" / f"{step:012d}"
         if writer:
             runs_lib.save_ppo(run_dir, step, ts, progress)

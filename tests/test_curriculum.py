@@ -174,3 +174,25 @@ def test_curve_series_after_a_restart():
             {"step": "2", "r": "20"}, {"step": "3", "r": "30"}]
     np.testing.assert_array_equal(curve_series(rows, "r"), [[1, 1], [2, 20], [3, 30]])
     assert curve_series(rows, "missing").shape == (0, 2)
+
+
+def test_push_plateau_by_hand():
+    """The plateau clock starts when the push stage first reaches a new highest level; a step
+    back and a return to that level do not restart it, and only the push stage counts."""
+    cfg = default_curriculum_config()
+    cfg.push_plateau_steps = 1000
+    rows = [  # (step, stage, push after the check)
+        (100, 1, 0.0), (200, 2, 0.0), (300, 2, 0.1), (400, 2, 0.2), (500, 2, 0.1), (600, 2, 0.2),
+        (700, 2, 0.2)]
+    high, at = 0.0, 0
+    for step, stage, push in rows:
+        high, at = cl.push_high_update(high, at, stage, push, step)
+    assert (high, at) == (0.2, 400)
+    assert not cl.push_plateaued(high, at, 1399, cfg) and cl.push_plateaued(high, at, 1400, cfg)
+    assert cl.push_held(high, cfg) == pytest.approx(0.1)
+    csv_rows = [{"step": str(s), "curriculum/stage": str(st), "curriculum/push_scale": str(p)}
+                for s, st, p in rows] + [{"step": "750", "curriculum/stage": "", "reward": "1"}]
+    assert cl.push_high_from_rows(csv_rows) == (0.2, 400)
+    assert not cl.push_plateaued(0.0, 0, 10**9, cfg)  # never in the push stage
+    cfg.push_plateau_steps = 0  # disabled: only a milestone at push 1 ends the curriculum
+    assert not cl.push_plateaued(high, at, 10**9, cfg)

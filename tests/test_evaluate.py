@@ -74,7 +74,16 @@ def test_markdown_row_has_paper_figures():
     row.update(speed_mps=0.61, speed_ci=[0.58, 0.64], horizon_s=85.0, track_seed=123,
                backend="mujoco")
     md = table1.table1_markdown([row])
-    assert "| terrain d=0.3 g=1.0 p=0.0 | 0.61 (0.58-0.64) | 85 | 123 | mujoco |" in md
+    assert "| 1,000 | - | terrain d=0.3 g=1.0 p=0.0 | 0.61 (0.58-0.64) | 85 | 123 | mujoco |" in md
+    row.update(train_h=11.537, curriculum_done=False)
+    assert "| 1,000 | 11.54 | terrain d=0.3 g=1.0 p=0.0, in training |" in table1.table1_markdown([row])
+    row.update(curriculum={"stage_name": "pushes", "difficulty": 1.0, "guide_scale": 0.0,
+                           "push_scale": 1.0}, curriculum_done=True, curriculum_end="push plateau",
+               push_held=0.9)
+    assert ("| pushes d=1.0 g=0.0 p=1.0, done on a push plateau (holds p=0.9) |"
+            in table1.table1_markdown([row]))
+    row.update(curriculum_end="full pushes", push_held=1.0)
+    assert "| pushes d=1.0 g=0.0 p=1.0, done |" in table1.table1_markdown([row])
 
 
 def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 
+import jax
 import numpy as np
 import pytest
 
@@ -84,9 +85,9 @@ def test_main_runs_the_policy_in_the_env_it_was_trained_for(tmp_path, monkeypatc
     seen = {}
     record = render.record
 
-    def spy_record(env, act, seconds, seed=0, track_id=0):
+    def spy_record(env, act, seconds, seed=0, track_id=0, **kw):
         seen["env"] = env
-        return record(env, act, seconds, seed, track_id)
+        return record(env, act, seconds, seed, track_id, **kw)
 
     def fake_frames(qpos, boxes, *args, **kw):
         seen["qpos"] = qpos
@@ -136,3 +137,35 @@ def test_contact_sheet_spreads_frames_over_the_clip(tmp_path):
     assert sheet.shape == (8, 18, 3)
     tiles = [int(sheet[r * 4, c * 6, 0]) for r in range(2) for c in range(3)]
     assert tiles == [0, 2, 5, 8, 10, 255]  # linspace(0, 10, 5) rounded; one tile left white
+
+
+def test_a_table1_trial_replays_to_the_float(tmp_path):
+    """`render --table1 J --trial I` reruns Table I's trial I: on its own one-track env, with
+    the reset key Table I gave it (random init, so the key matters) and Table I's batch size
+    (which changes the policy's rounding), the final distance equals the batch rollout's."""
+    import functools
+
+    from biped_switch import env as env_lib
+    from biped_switch import table1
+    from biped_switch.policies import load_policy
+    from biped_switch.rollout import rollout
+    from policy_runs import fake_policy_run
+
+    ckpt = fake_policy_run(tmp_path / "runs", "jumps", init="random")
+    seed, batch, trials, track_seed, seconds = 3, 2, 3, 10_000, 0.6
+    env = env_lib.make_env("jumps", "random", n_tracks=trials, seed=track_seed, backend="mujoco")
+    act = load_policy(ckpt, env)[0]
+    run = jax.jit(functools.partial(rollout, env, act, n_envs=batch, horizon=int(round(seconds / env.dt))))
+    dist = np.concatenate([np.asarray(run(table1.batch_key(seed, s), track_ids=(np.arange(s, s + batch) % trials))["distance_m"])
+                           for s in range(0, trials, batch)])[:trials]
+    # by hand: trial 2 is the first of the second batch, whose key is PRNGKey(seed + 2)
+    np.testing.assert_array_equal(table1.trial_reset_key(seed, batch, 2),
+                                  jax.random.split(jax.random.split(jax.random.PRNGKey(5))[0], 2)[0])
+    for trial in (1, 2):
+        one = env_lib.make_env("jumps", "random", n_tracks=1, seed=track_seed + trial, backend="mujoco")
+        key = table1.trial_reset_key(seed, batch, trial)
+        _, _, m = render.record(one, load_policy(ckpt, one)[0], seconds, reset_key=key, batch=batch)
+        assert m["distance_m"] == dist[trial], (trial, m["distance_m"], dist)
+    _, _, other = render.record(one, load_policy(ckpt, one)[0], seconds, reset_key=jax.random.PRNGKey(99),
+                                batch=batch)
+    assert other["distance_m"] != dist[2]  # another initial state: another trajectory

@@ -392,3 +392,29 @@ def test_main_keeps_the_stats_of_targets_swept_before(fake_sweep, tmp_path):
     g = sweeps["gaps"]
     assert (g["points"], g["points_new"], g["wall_s"], g["loop_s"]) == (60, 20, 21 + 11, 10)
     assert g["points_per_s"] == 2.0 and g["points_per_s_steady"] is None
+
+
+def test_main_keeps_the_table_of_a_target_whose_data_is_gone(fake_sweep, tmp_path):
+    """Sweep data is too large to commit, so a later session may sweep gaps without jumps'
+    npz: jumps' table (rates, counts, best distances), stats and policies stay in the lookup."""
+    out, res = tmp_path / "sweeps", tmp_path / "lookup"
+    argv = ["--points", "30", "--batch", "6", "--tracks", "1000", "--out", str(out),
+            "--results", str(res), "--targets"]
+    assert sweep.main(argv + ["jumps"]) == 0
+    first = json.loads((res / "lookup_stand.json").read_text())
+    import shutil
+
+    shutil.rmtree(out)  # a fresh machine: no sweep data
+    assert sweep.main(argv + ["gaps"]) == 0
+    doc = json.loads((res / "lookup_stand.json").read_text())
+    assert doc["tables"]["jumps"] == first["tables"]["jumps"] and "gaps" in doc["tables"]
+    assert doc["meta"]["sweeps"]["jumps"] == first["meta"]["sweeps"]["jumps"]
+    assert doc["meta"]["policies"]["jumps"] == first["meta"]["policies"]["jumps"]
+    for k, v in first["best_m"].items():
+        if k.endswith("->jumps"):
+            assert doc["best_m"][k] == v
+    # by hand: a row's best bin is the highest rate, ties to the farthest bin; the target's row is NaN
+    t = sweep.table_from_rates([[0.5, 1.0, 1.0, np.nan], [0.0, 0.0, 0.0, 0.0], [1.0, 0, 0, 0],
+                                [0.0, 0.2, 0.1, 0.3]], [[2, 1, 1, 0], [0, 0, 0, 0], [1, 1, 1, 1],
+                                                       [1, 1, 1, 1]], "jumps", 0.1)
+    np.testing.assert_allclose(t["best_m"], [0.25, np.nan, 0.05, 0.35])

@@ -206,6 +206,36 @@ def test_the_push_stage_ends_with_a_milestone_at_full_pushes(tmp_path, monkeypat
     assert on["step"] == 384 and on["curriculum_done"]
 
 
+def test_the_push_stage_ends_on_a_plateau(tmp_path, monkeypatch):
+    """No milestone at push 0.5 for push_plateau_steps env steps: the curriculum ends there,
+    holding push 0.4, and says so in progress.json and the log. A checkpoint from
+    before session 11 (no push_high in progress.json) replays metrics.csv to the same end."""
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
+    cfg = _tiny_cfg("walk")
+    cfg.total_timesteps = 128 * 8
+    cfg.start.update(stage=2, difficulty=1.0, guide_scale=0.0, push_scale=0.5)
+    cfg.curriculum.update(reward_milestone=100.0, regress_fell=1.0, push_plateau_steps=256)
+    quiet = lambda *a: None  # noqa: E731
+    for old in (False, True):
+        run = tmp_path / f"walk_stand_{old}"
+        first = train_lib.train(cfg, run, max_chunks=1, print_fn=quiet)
+        assert (first["push_high"], first["push_high_step"], first["curriculum_done"]) == (0.5, 128, False)
+        if old:
+            ck = runs_lib.latest_checkpoint(run) / runs_lib.PROGRESS
+            prog = json.loads(ck.read_text())
+            for k in ("push_high", "push_high_step", "curriculum_end", "push_held"):
+                del prog[k]
+            ck.write_text(json.dumps(prog))
+        lines = []
+        last = train_lib.train(cfg, run, print_fn=lines.append)
+        assert last["step"] == 384 and last["curriculum_done"]
+        assert last["curriculum_end"] == "push plateau" and last["push_held"] == pytest.approx(0.4)
+        assert any("ends on a plateau, holding push 0.40" in ln for ln in lines)
+        assert "the curriculum finished at step 384" in lines[-1]
+        # finished: the demo and Table III do not count it as in training
+        assert runs_lib.run_notes(run, step_goal=False) == []
+
+
 def test_unknown_policy_and_preset_are_named():
     cfg = default_train_config("cpu")
     cfg.policy = "hop"
