@@ -90,7 +90,9 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
                curriculum=progress["curriculum"], curriculum_done=progress.get("curriculum_done"),
                curriculum_end=progress.get("curriculum_end"), push_held=progress.get("push_held"),
                train_h=float(progress["wall_s"]) / 3600.0 if "wall_s" in progress else None,
-               warm_start=progress.get("warm_start") or "", backend=env.backend,
+               warm_start=progress.get("warm_start") or "",
+               full_push=full_push(runs_lib.read_config(pathlib.Path(ckpt).parent.parent)),
+               backend=env.backend,
                track_seed=track_seed,
                env_overrides=overrides, horizon_s=horizon_s,
                horizon_from=horizon_from, finish_m_max=finish_m,
@@ -157,7 +159,33 @@ def table1_markdown(rows: list[dict]) -> str:
             f"| {r['policy']} | {r['init']} | {r['n']} | {dist_success_cells(r)} | {pd} | {ps} | "
             f"{r['train_step']:,} | {hours_cell(r)} | {curriculum_cell(c, r)} | "
             f"{speed} | {horizon} | {r.get('track_seed', '-')} | {r.get('backend', '-')} |")
-    return "\n".join(lines)
+    notes = table1_notes(rows)
+    return "\n".join(lines + ([""] + [f"- {n}" for n in notes] if notes else []))
+
+
+def full_push(run_cfg: dict) -> str:
+    """A run's full push scale, as its config.json has it ('?' when it does not)."""
+    c = run_cfg.get("curriculum", {})
+    if "max_push_N" not in c or "push_duration_s" not in c:
+        return "?"
+    return f"{float(c['max_push_N']):g} N for {float(c['push_duration_s']):g} s"
+
+
+def table1_notes(rows: list[dict]) -> list[str]:
+    """The table's notes: each policy's warm start (a deviation from training from scratch;
+    `train --warm-start`, omitted = from scratch) and each curriculum that ended on a push
+    plateau (a deviation from pushes grown to the full scale: curriculum.py)."""
+    notes = []
+    for r in rows:
+        name = f"{r['policy']}/{r['init']}"
+        if r.get("warm_start"):
+            notes.append(f"{name} was warm-started from {r['warm_start']} (its parameters and "
+                         "normaliser; `train` without `--warm-start` trains from scratch)")
+        if r.get("curriculum_end") == "push plateau":
+            notes.append(f"{name}'s push stage ended on a plateau: it holds push "
+                         f"{float(r['push_held']):.2f} of the full scale "
+                         f"({r.get('full_push', '?')}), not 1")
+    return notes
 
 
 def paper_row(r: dict):

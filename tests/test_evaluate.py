@@ -80,8 +80,15 @@ def test_markdown_row_has_paper_figures():
     row.update(curriculum={"stage_name": "pushes", "difficulty": 1.0, "guide_scale": 0.0,
                            "push_scale": 1.0}, curriculum_done=True, curriculum_end="push plateau",
                push_held=0.9)
-    assert ("| pushes d=1.0 g=0.0 p=1.0, done on a push plateau (holds p=0.9) |"
-            in table1.table1_markdown([row]))
+    row.update(warm_start="models/policies/walk_stand/checkpoints/000073506816",
+               full_push=table1.full_push({"curriculum": {"max_push_N": 150.0, "push_duration_s": 0.2}}))
+    md = table1.table1_markdown([row])
+    assert "| pushes d=1.0 g=0.0 p=1.0, done on a push plateau (holds p=0.9) |" in md
+    assert md.endswith("\n\n- gaps/random was warm-started from models/policies/walk_stand/"
+                       "checkpoints/000073506816 (its parameters and normaliser; `train` without "
+                       "`--warm-start` trains from scratch)\n- gaps/random's push stage ended on a "
+                       "plateau: it holds push 0.90 of the full scale (150 N for 0.2 s), not 1")
+    row["warm_start"] = ""
     row.update(curriculum_end="full pushes", push_held=1.0)
     assert "| pushes d=1.0 g=0.0 p=1.0, done |" in table1.table1_markdown([row])
 
