@@ -60,15 +60,32 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
                 (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
             skipped.append(f"{m}: no {init}-init estimators in {est_dir} (make train-estimators)")
             continue
-        if m == "lookup" and not (pathlib.Path(lookup_dir) / "lookup_stand.json").exists():
-            skipped.append(f"{m}: no lookup table in {lookup_dir} (python -m biped_switch.sweep)")
-            continue
+        if m == "lookup":
+            missing = lookup_missing(pathlib.Path(lookup_dir) / "lookup_stand.json")
+            if missing is None:
+                skipped.append(f"{m}: no lookup table in {lookup_dir} (python -m biped_switch.sweep)")
+                continue
+            if missing:  # swept one target at a time, across sessions
+                skipped.append(f"{m}: the lookup table in {lookup_dir} has no {', '.join(missing)} "
+                               f"(python -m biped_switch.sweep --targets {' '.join(missing)})")
+                continue
         if m == "dqn" and runs_lib.find_dqn(runs, "stand", dqn_dir) is None:
             skipped.append(f"{m}: no DQN checkpoint in {dqn_dir or f'{runs}/dqn_stand'} or "
                            f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
             continue
         ok.append(m)
     return ok, skipped
+
+
+def lookup_missing(path: pathlib.Path) -> list[str] | None:
+    """The artifact kinds a lookup JSON has no table for (None: no such file). A file with no
+    "tables" key (written before tables were stored) counts as complete."""
+    import json
+
+    if not path.exists():
+        return None
+    tables = json.loads(path.read_text()).get("tables")
+    return [] if tables is None else [k for k in terrain.ARTIFACT_KINDS if k not in tables]
 
 
 def _run_batches(run, trials: int, batch: int, seed: int) -> dict:

@@ -219,7 +219,12 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
         for k in ("jumps", "gaps", "stairs"):
             (est / f"{init}_{k}").mkdir(parents=True)
     lookup.mkdir()
-    (lookup / "lookup_stand.json").write_text("{}")
+    (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}}}')  # one target swept
+    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    assert "lookup" not in ok and skipped == [
+        f"lookup: the lookup table in {lookup} has no gaps, stairs (python -m biped_switch.sweep "
+        "--targets gaps stairs)"]
+    (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.MULTI_METHODS) and skipped == []
     assert runs_lib.find_dqn(runs) == runs / "dqn_stand"
