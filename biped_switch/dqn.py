@@ -575,10 +575,10 @@ def dqn_rollout(env, suite_apply, suite_params, q_apply, q_params, rng: jax.Arra
     gives the same start states as multi_rollout; `guide_scale` > 0 turns the scripted guides on
     (pipeline checks)."""
     p = policy_obs_size(env)
-    k_reset, k_run = jax.random.split(rng)
+    reset_keys, k_run = rollout_lib.episode_keys(rng, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
-    state = rollout_lib.reset_by_track(env, jax.random.split(k_reset, n_envs), track_ids,
+    state = rollout_lib.reset_by_track(env, reset_keys, track_ids,
                                        guide_scale=guide_scale)
 
     def act(c, state, live, _):

@@ -48,6 +48,13 @@ class Episodes(NamedTuple):
     trace: Any  # the per-step records (horizon, ...) of `trace`, else None
 
 
+def episode_keys(rng: jax.Array, n_envs: int) -> tuple[jax.Array, jax.Array]:
+    """(one reset key per env (n_envs, 2), the key left for the run): how every batch rollout
+    splits its rng, so that one episode's start can be drawn again (table1.trial_reset_key)."""
+    k_reset, k_run = jax.random.split(rng)
+    return jax.random.split(k_reset, n_envs), k_run
+
+
 def reset_by_track(env, keys: jax.Array, track_ids: jax.Array | None = None, **reset_args):
     """A batch of `env.reset(key, track_id=id, **reset_args)`, one per key; `track_ids` None: the
     env draws each track. `reset_args` (difficulty, guide_scale, ...; traced ok) go to every one."""
@@ -121,8 +128,8 @@ def rollout(env, policy: PolicyFn, rng: jax.Array, n_envs: int, horizon: int,
     `reset_args` (e.g. the curriculum's difficulty, guide_scale, push_scale; traced ok) go to
     every `env.reset`. Runs in chunks of `chunk` steps and stops early once every episode has
     ended; `chunk=None` runs one scan over the horizon."""
-    k_reset, k_run = jax.random.split(rng)
-    state = reset_by_track(env, jax.random.split(k_reset, n_envs), track_ids, **(reset_args or {}))
+    reset_keys, k_run = episode_keys(rng, n_envs)
+    state = reset_by_track(env, reset_keys, track_ids, **(reset_args or {}))
 
     terms = [k for k in state.metrics if k.startswith("reward/")]
 

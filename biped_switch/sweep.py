@@ -39,7 +39,7 @@ from biped_switch import policies as pol
 from biped_switch import terrain
 from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config
 from biped_switch.estimator import HM_SIZE, load_data
-from biped_switch.rollout import over_devices, reset_by_track, run_episodes
+from biped_switch.rollout import episode_keys, over_devices, reset_by_track, run_episodes
 from biped_switch.switching import smoothed_success_pct
 
 N_WINDOW = 5
@@ -159,8 +159,8 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     past which steps count from the artifact's end (tests only: the guided robot never crosses an
     artifact, so only a line moved back gives it labels of 1)."""
     n = track_ids.shape[0]
-    k_reset, k_u = jax.random.split(rng)
-    state = reset_by_track(env, jax.random.split(k_reset, n), track_ids, guide_scale=guide_scale)
+    reset_keys, k_u = episode_keys(rng, n)
+    state = reset_by_track(env, reset_keys, track_ids, guide_scale=guide_scale)
     switch_at = jax.random.uniform(k_u, (n,), maxval=switch_max_m)
     carry = {"active": sources.astype(jnp.int32), "switched": jnp.zeros(n, bool),
              "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
@@ -478,6 +478,17 @@ def load_lookup(init: str, results: str | pathlib.Path = "experiments/results/lo
         raise FileNotFoundError(f"{path} missing: run `python -m biped_switch.sweep --init {init}`")
     m = json.loads(path.read_text())["matrix_m"]
     return np.array([[np.nan if v is None else v for v in row] for row in m])
+
+
+def lookup_missing(init: str, results: str | pathlib.Path = "experiments/results/lookup"
+                   ) -> list[str] | None:
+    """The artifact kinds the saved lookup table has no table for (None: no lookup file). Targets
+    may be swept one at a time, across sessions, so a lookup may cover only some."""
+    path = pathlib.Path(results) / f"lookup_{init}.json"
+    if not path.exists():
+        return None
+    tables = json.loads(path.read_text()).get("tables", {})
+    return [k for k in terrain.ARTIFACT_KINDS if k not in tables]
 
 
 def rate_or_none(points: int, seconds: float):

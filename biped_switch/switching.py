@@ -30,7 +30,7 @@ import numpy as np
 
 from biped_switch import policies as pol
 from biped_switch.config import default_switching_config
-from biped_switch.rollout import reset_by_track, run_episodes
+from biped_switch.rollout import episode_keys, reset_by_track, run_episodes
 from biped_switch.terrain import ARTIFACT_KINDS
 
 METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator")
@@ -211,10 +211,10 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
     (`rollout.run_episodes`; ended episodes step on unread). Returns the per-episode final env
     metrics, `length` (live steps), `done` and `n_switches`. `guide_scale` > 0 turns the scripted
     gait's guide forces on (tests and diagnostics only)."""
-    k_reset, k_run = jax.random.split(rng)
+    reset_keys, k_run = episode_keys(rng, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
-    state = reset_by_track(env, jax.random.split(k_reset, n_envs), track_ids,
+    state = reset_by_track(env, reset_keys, track_ids,
                            guide_scale=guide_scale)
     switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules)
 

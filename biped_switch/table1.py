@@ -25,7 +25,7 @@ from biped_switch import provenance as prov
 from biped_switch import runs as runs_lib
 from biped_switch.config import EVAL_TRACK_SEED
 from biped_switch.policies import load_policy
-from biped_switch.rollout import rollout
+from biped_switch.rollout import episode_keys, rollout
 from biped_switch.stats import dist_success_cells, episode_table, mean_ci, pct_ci_cell
 
 HORIZON_SPEED_MPS = 0.6  # Table I's acceptance speed: the derived horizon lets a walker this
@@ -109,19 +109,11 @@ def batch_key(seed: int, start: int) -> jax.Array:
 
 
 def trial_reset_key(seed: int, batch: int, trial: int) -> jax.Array:
-    """The reset key Table I gave trial `trial` (on track track_seed + trial): `rollout` splits
-    its batch key into (reset, run) and the reset key into one per env. The policy is
-    deterministic and pushes are off, so this key and the track replay the trial exactly
-    (`render --table1 PATH --trial I`)."""
+    """The reset key Table I gave trial `trial` (on track track_seed + trial), drawn as
+    `rollout` draws it. The policy is deterministic and pushes are off, so this key, the track
+    and Table I's batch size replay the trial exactly (`render --table1 PATH --trial I`)."""
     start = (trial // batch) * batch
-    k_reset = jax.random.split(batch_key(seed, start))[0]
-    return jax.random.split(k_reset, batch)[trial - start]
-
-
-def failure_track_seeds(row: dict) -> list[int]:
-    """The track seeds of a Table I row's trials that did not succeed."""
-    ok = set(row.get("success_track_seeds", ()))
-    return [row["track_seed"] + i for i in range(row["n"]) if row["track_seed"] + i not in ok]
+    return episode_keys(batch_key(seed, start), batch)[0][trial - start]
 
 
 def curriculum_cell(c: dict, r: dict | None = None) -> str:

@@ -61,7 +61,7 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
             skipped.append(f"{m}: no {init}-init estimators in {est_dir} (make train-estimators)")
             continue
         if m == "lookup":
-            missing = lookup_missing(pathlib.Path(lookup_dir) / "lookup_stand.json")
+            missing = sweep.lookup_missing("stand", lookup_dir)
             if missing is None:
                 skipped.append(f"{m}: no lookup table in {lookup_dir} (python -m biped_switch.sweep)")
                 continue
@@ -75,17 +75,6 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
             continue
         ok.append(m)
     return ok, skipped
-
-
-def lookup_missing(path: pathlib.Path) -> list[str] | None:
-    """The artifact kinds a lookup JSON has no table for (None: no such file). A file with no
-    "tables" key (written before tables were stored) counts as complete."""
-    import json
-
-    if not path.exists():
-        return None
-    tables = json.loads(path.read_text()).get("tables")
-    return [] if tables is None else [k for k in terrain.ARTIFACT_KINDS if k not in tables]
 
 
 def _run_batches(run, trials: int, batch: int, seed: int) -> dict:
