@@ -56,8 +56,8 @@ from biped_switch.paper import TABLE2_FAIL_ORDER
 from biped_switch.policies import POLICY_NAMES
 from biped_switch.runs import BASELINE_DIR, find_policy
 from biped_switch.table1 import HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, table1_markdown
-from biped_switch.table2 import (MULTI_METHODS, available_methods, evaluate_multi, table2_markdown,
-                                 trial_track)
+from biped_switch.table2 import (MULTI_METHODS, available_methods, evaluate_multi, merge_rows,
+                                 table2_markdown, trial_track)
 from biped_switch.table3 import retrain_cost, table3_markdown
 from biped_switch.terrain import ARTIFACT_KINDS
 
@@ -102,6 +102,9 @@ def main(argv=None) -> int:
     m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 (-1: none)")
     m.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
     m.add_argument("--out", default="experiments/results/table2")
+    m.add_argument("--fresh", action="store_true",
+                   help="replace OUT/table2.json (by default this run's rows join its rows of the "
+                        "other methods, when made with the same trials, batch, seed and horizon)")
     r = sub.add_parser("retrain-cost", help="Table III: hours to add a new terrain, from logs")
     r.add_argument("--runs", default="runs")
     r.add_argument("--results", default="experiments/results")
@@ -188,6 +191,13 @@ def _main_multi(a, p) -> int:
                 f"{a.n_artifacts})")
     batch = min(a.batch, a.trials)
     t0 = time.perf_counter()
+    json_path = pathlib.Path(a.out) / "table2.json"
+    old = None if a.fresh or not json_path.exists() else json.loads(json_path.read_text())
+    settings = {**vars(a), "batch": batch}
+    try:  # before an hour of rollouts, not after
+        merge_rows(old, [], settings)
+    except ValueError as e:
+        p.error(f"{json_path}: {e}")
     a.methods, skipped = available_methods(a.methods, a.runs, a.estimators, a.lookup, a.dqn,
                                            a.stand_in)
     for s in skipped:
@@ -201,6 +211,14 @@ def _main_multi(a, p) -> int:
                                   a.stand_in, a.estimators, a.lookup,
                                   print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale,
                                   dqn_dir=a.dqn, n_artifacts=a.n_artifacts, backend=a.backend)
+    session_s = time.perf_counter() - t0
+    rows = merge_rows(old, rows, settings)
+    have = {r["method"] for r in rows}
+    skipped = [sk for sk in skipped if sk.split(":")[0] not in have]
+    if old:
+        kept = [r["method"] for r in rows if r["method"] not in a.methods]
+        print(f"kept from {json_path}: {', '.join(kept) or 'no rows'}", flush=True)
+    settings["methods"] = [r["method"] for r in rows]
     out = _write_table(a.out, "table2", table2_markdown(rows),
                        ["method", "init", "trials"]
                        # gap_fail_pct, ..., stair_fail_hi: the singular of each kind
@@ -210,9 +228,12 @@ def _main_multi(a, p) -> int:
                         + [v for k in TABLE2_FAIL_ORDER for v in (r["fail_on"][k], *r["fail_ci"][k])]
                         + [r["switches_per_trial"], r["wall_s"]] for r in rows],
                        rows)
-    wall = time.perf_counter() - t0
+    # wall_s: the time to make the whole table, the sum of its rows' (each with its setup and
+    # compiles), over the sessions that made them; wall_s_session: this command's rollouts
+    wall = float(sum(r["wall_s"] for r in rows))
     (out / "table2.json").write_text(json.dumps(
-        {"settings": vars(a), "rows": rows, "skipped": skipped, "wall_s": wall,
+        {"settings": settings, "rows": rows, "skipped": skipped, "wall_s": wall,
+         "wall_s_session": session_s,
          "device": str(jax.devices()[0]), "backend": sorted({r["backend"] for r in rows}),
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
     if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
@@ -225,8 +246,8 @@ def _main_multi(a, p) -> int:
                             track_seed=MULTI_TRACK_SEED + a.fig5_trial % a.trials,
                             n_artifacts=a.n_artifacts)
         print(f"wrote {path}")
-    print(json.dumps({"table2_wall_s": round(wall, 1), "trials": a.trials,
-                      "methods": len(a.methods)}))
+    print(json.dumps({"table2_wall_s": round(wall, 1), "session_s": round(session_s, 1),
+                      "trials": a.trials, "methods_run": len(a.methods), "rows": len(rows)}))
     return 0
 
 

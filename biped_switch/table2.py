@@ -77,12 +77,20 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
     return ok, skipped
 
 
-def _run_batches(run, trials: int, batch: int, seed: int) -> dict:
-    """`run(rng, track_ids)` over trials in batches; trial i is track i, rng = seed + batch start."""
-    results = []
+def _run_batches(run, trials: int, batch: int, seed: int, print_fn=None, label: str = "") -> dict:
+    """`run(rng, track_ids)` over trials in batches; trial i is track i, rng = seed + batch start.
+    With `print_fn`, a line per batch (trials done, running success, time left), since a full
+    Table II row takes tens of minutes on a CPU."""
+    results, t0 = [], time.perf_counter()
     for start in range(0, trials, batch):
         ids = jax.numpy.arange(start, start + batch, dtype=jax.numpy.int32) % trials
         results.append(jax.device_get(run(jax.random.PRNGKey(seed + start), ids)))
+        if print_fn is not None:
+            done = min(start + batch, trials)
+            succ = np.concatenate([r["success"] for r in results])[:done]
+            el = time.perf_counter() - t0
+            print_fn(f"    [{label}] {done:,}/{trials:,} trials, success so far {100 * succ.mean():.1f}%,"
+                     f" {el:.0f} s (~{el / done * (trials - done) / 60:.1f} min left)")
     return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
 
 
@@ -131,10 +139,11 @@ class MultiSetup:
         self.batch = batch
         self.guide_scale = guide_scale
 
-    def evaluate(self, method: str, trials: int, seed: int) -> dict:
+    def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
         rules = sw.make_rules(method, lookup_m=self.lookup_m)
         return _run_batches(lambda rng, ids: self.run(self.suite.params, self.est_params, rules,
-                                                      rng, ids), trials, self.batch, seed)
+                                                      rng, ids), trials, self.batch, seed, print_fn,
+                            f"{self.init}/{method}")
 
 
 class BaselineSetup:
@@ -149,6 +158,7 @@ class BaselineSetup:
                  backend: str = "auto"):
         if method not in BASELINES:
             raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
+        self.method = method
         if method == "dqn":
             run_dir = runs_lib.find_dqn(runs, "stand", dqn_dir)
             if run_dir is None:
@@ -186,9 +196,9 @@ class BaselineSetup:
         self.run = over_devices(one, n_shared=2)
         self.batch = batch
 
-    def evaluate(self, trials: int, seed: int) -> dict:
+    def evaluate(self, trials: int, seed: int, print_fn=None) -> dict:
         return _run_batches(lambda rng, ids: self.run(self.suite.params, self.q_params, rng, ids),
-                            trials, self.batch, seed)
+                            trials, self.batch, seed, print_fn, self.method)
 
 
 def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
@@ -205,7 +215,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         if method in BASELINES:
             setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
                                            guide_scale, n_artifacts, backend)
-            merged, sources = setups[method].evaluate(trials, seed), setups[method].sources
+            merged = setups[method].evaluate(trials, seed, print_fn)
+            sources = setups[method].sources
         else:
             if init not in setups:
                 need_est = ("estimator_no_overlap" if init == "random" else "estimator") in methods
@@ -214,7 +225,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                                           "lookup" in methods and init == "stand", guide_scale,
                                           n_artifacts, backend)
             rule = "estimator" if method == "estimator_no_overlap" else method
-            merged, sources = setups[init].evaluate(rule, trials, seed), setups[init].suite.sources
+            merged = setups[init].evaluate(rule, trials, seed, print_fn)
+            sources = setups[init].suite.sources
         row = episode_table(merged)
         env = setups[method if method in BASELINES else init].env
         row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
@@ -224,6 +236,31 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
                  f"  ({row['wall_s']:.0f} s)")
     return rows, setups
+
+
+# The settings that fix what a Table II row measured: rows made with equal values of these are
+# rows of one table (the batch too: a policy's matmuls round differently at another batch size, and
+# a trajectory is chaotic), so `evaluate multi` may add rows to a table across sessions.
+TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "n_artifacts", "stand_in", "guide_scale")
+
+
+def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]:
+    """`rows` joined with the rows of `old` (a table2.json) for the methods not among them, in
+    MULTI_METHODS order: the methods' inputs (sweeps, estimators, DQN, end-to-end policy) are
+    ready at different times, and each row's `policies` keeps where it came from. Raises
+    ValueError naming the settings that differ, so rows of other trials never stand together."""
+    if not old:
+        return list(rows)
+    before = old.get("settings", {})
+    diff = {k: (before.get(k), settings.get(k)) for k in TRIAL_KEYS if before.get(k) != settings.get(k)}
+    if diff:
+        raise ValueError("the table there was made with other settings ("
+                         + ", ".join(f"{k}: {a!r} there, {b!r} now" for k, (a, b) in diff.items())
+                         + "): use another --out, or --fresh to replace it")
+    new = {r["method"] for r in rows}
+    kept = [r for r in old.get("rows", []) if r["method"] not in new]
+    order = {m: i for i, m in enumerate(MULTI_METHODS)}
+    return sorted(kept + list(rows), key=lambda r: order.get(r["method"], len(order)))
 
 
 def table2_markdown(rows: list[dict]) -> str:

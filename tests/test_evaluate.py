@@ -298,3 +298,45 @@ def test_demo_runs_end_to_end_on_the_pipeline_check(tmp_path, monkeypatch):
     md = (out / "table2_demo.md").read_text()
     assert md.startswith("PIPELINE CHECK") and "| detection | 2 |" in md
     assert (out / "fig5_demo.png").stat().st_size > 10_000
+
+
+def _table2_row(method, success, wall_s=10.0):
+    res = {"progress_frac": np.array([1.0, 0.5]), "success": np.array([success, 0.0]),
+           "fell": np.array([0.0, 1.0]), "fail_kind": np.array([-1, 1.0])}
+    row = stats.episode_table(res)
+    row.update(method=method, init="stand", wall_s=wall_s, switches_per_trial=3.0,
+               policies=[f"{method} suite"], backend="mujoco")
+    return row
+
+
+def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
+    """`evaluate multi` run for some methods, then for others, leaves one table with the rows of
+    both in Table II's order (a rerun method replaces its row); the table's wall time is the sum
+    of its rows'. Another trial count is refused before any rollout, naming the setting, and
+    --fresh replaces the table."""
+    calls = []
+
+    def fake_multi(methods, trials, batch, *args, **kw):
+        calls.append((list(methods), trials, batch))
+        return [_table2_row(m, 1.0 if len(calls) > 1 else 0.0) for m in methods], {}
+
+    monkeypatch.setattr(ev, "evaluate_multi", fake_multi)
+    monkeypatch.setattr(ev, "available_methods", lambda methods, *a, **k: (list(methods), []))
+    out = tmp_path / "table2"
+    base = ["multi", "--trials", "2", "--batch", "2", "--fig5-trial", "-1", "--out", str(out)]
+    assert ev.main(base + ["--methods", "estimator", "detection"]) == 0
+    assert ev.main(base + ["--methods", "random", "detection"]) == 0
+    doc = json.loads((out / "table2.json").read_text())
+    assert [r["method"] for r in doc["rows"]] == ["random", "detection", "estimator"]
+    assert [r["success_pct"] for r in doc["rows"]] == [50.0, 50.0, 0.0]  # detection: the rerun's
+    assert doc["wall_s"] == pytest.approx(30.0)
+    assert doc["settings"]["methods"] == ["random", "detection", "estimator"]
+    md = (out / "table2.md").read_text()
+    assert md.index("| random |") < md.index("| detection |") < md.index("| estimator |")
+    with pytest.raises(SystemExit):
+        ev.main(["multi", "--trials", "3", "--batch", "2", "--methods", "lookup", "--out", str(out)])
+    assert len(calls) == 2  # refused before rolling out
+    with pytest.raises(ValueError, match=r"trials: 2 there, 3 now"):
+        table2.merge_rows(doc, [], {**doc["settings"], "trials": 3})
+    assert ev.main(base[:-2] + ["--out", str(out), "--methods", "lookup", "--fresh"]) == 0
+    assert [r["method"] for r in json.loads((out / "table2.json").read_text())["rows"]] == ["lookup"]
