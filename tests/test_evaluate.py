@@ -340,3 +340,20 @@ def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
         table2.merge_rows(doc, [], {**doc["settings"], "trials": 3})
     assert ev.main(base[:-2] + ["--out", str(out), "--methods", "lookup", "--fresh"]) == 0
     assert [r["method"] for r in json.loads((out / "table2.json").read_text())["rows"]] == ["lookup"]
+
+
+def test_run_batches_covers_each_trial_once_and_reports_progress():
+    """Trial i runs on track i with the rng of its batch's start; the last batch wraps round and is
+    cut; one progress line per batch with the running success over the trials done."""
+    seen, lines = [], []
+
+    def run(rng, ids):
+        seen.append((int(np.asarray(rng)[-1]), np.asarray(ids).tolist()))  # PRNGKey(n) = [0, n]
+        return {"success": (np.asarray(ids) % 2 == 0).astype(float), "track": np.asarray(ids)}
+
+    out = table2._run_batches(run, 5, 2, seed=10, print_fn=lines.append, label="stand/x")
+    assert [s[1] for s in seen] == [[0, 1], [2, 3], [4, 0]]
+    assert [s[0] for s in seen] == [10, 12, 14]  # PRNGKey(seed + batch start)
+    assert out["track"].tolist() == [0, 1, 2, 3, 4] and out["success"].tolist() == [1, 0, 1, 0, 1]
+    assert len(lines) == 3 and "[stand/x] 2/5 trials, success so far 50.0%" in lines[0]
+    assert "5/5 trials, success so far 60.0%" in lines[2] and "~0.0 min left" in lines[2]
