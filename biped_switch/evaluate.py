@@ -185,6 +185,17 @@ def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list
     return out
 
 
+def save_trials(path: pathlib.Path, per_trial: dict, keep: set) -> None:
+    """Per-trial outcomes as `<method>/<field>` arrays, joined with those already in `path` for
+    the methods of the table (`keep`) that this run did not redo."""
+    arrays = {}
+    if path.exists():
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files if k.split("/")[0] in keep - set(per_trial)}
+    arrays.update({f"{m}/{k}": v for m, d in per_trial.items() for k, v in d.items()})
+    np.savez_compressed(path, **arrays)
+
+
 def _main_multi(a, p) -> int:
     if a.trials < 1 or a.batch < 1 or a.n_artifacts < 1:
         p.error(f"--trials, --batch and --n-artifacts must be >= 1 (got {a.trials}, {a.batch}, "
@@ -207,10 +218,12 @@ def _main_multi(a, p) -> int:
         return 1
     print(f"Table II: {len(a.methods)} methods x {a.trials} trials of mixed tracks (batch {batch}, "
           f"{jax.local_device_count()} {jax.devices()[0].platform} device(s))", flush=True)
+    per_trial = {}
     rows, setups = evaluate_multi(a.methods, a.trials, batch, a.horizon_s, a.seed, a.runs,
                                   a.stand_in, a.estimators, a.lookup,
                                   print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale,
-                                  dqn_dir=a.dqn, n_artifacts=a.n_artifacts, backend=a.backend)
+                                  dqn_dir=a.dqn, n_artifacts=a.n_artifacts, backend=a.backend,
+                                  per_trial=per_trial)
     session_s = time.perf_counter() - t0
     rows = merge_rows(old, rows, settings)
     have = {r["method"] for r in rows}
@@ -236,6 +249,7 @@ def _main_multi(a, p) -> int:
          "wall_s_session": session_s,
          "device": str(jax.devices()[0]), "backend": sorted({r["backend"] for r in rows}),
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
+    save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
     if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
         s = setups["stand"]
         rec = trace_trial(s, "estimator", a.fig5_trial % a.trials, a.seed)

@@ -204,10 +204,12 @@ class BaselineSetup:
 def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
                    stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
                    print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
-                   n_artifacts: int = 7, backend: str = "auto") -> tuple[list, dict]:
+                   n_artifacts: int = 7, backend: str = "auto",
+                   per_trial: dict | None = None) -> tuple[list, dict]:
     """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
     and per baseline ("dqn", "end_to_end"), every env on the physics `backend` with its policies'
-    env overrides. `wall_s` of a row includes its setup and compiles."""
+    env overrides. `wall_s` of a row includes its setup and compiles. `per_trial`, if given, gets
+    each method's per-trial outcomes (TRIAL_FIELDS), to find the trials behind a row's failures."""
     setups, rows = {}, []
     for method in methods:
         t0 = time.perf_counter()
@@ -227,6 +229,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
             rule = "estimator" if method == "estimator_no_overlap" else method
             merged = setups[init].evaluate(rule, trials, seed, print_fn)
             sources = setups[init].suite.sources
+        if per_trial is not None:
+            per_trial[method] = {k: np.asarray(merged[k]) for k in TRIAL_FIELDS if k in merged}
         row = episode_table(merged)
         env = setups[method if method in BASELINES else init].env
         row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
@@ -236,6 +240,11 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
                  f"  ({row['wall_s']:.0f} s)")
     return rows, setups
+
+
+# Per-trial outcomes `evaluate multi` keeps beside the table (table2_trials.npz): trial i ran on
+# track MULTI_TRACK_SEED + i; fail_kind is the ARTIFACT_KINDS code of the artifact fallen on (-1: none)
+TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches")
 
 
 # The settings that fix what a Table II row measured: rows made with equal values of these are

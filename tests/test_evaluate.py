@@ -316,8 +316,10 @@ def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
     --fresh replaces the table."""
     calls = []
 
-    def fake_multi(methods, trials, batch, *args, **kw):
+    def fake_multi(methods, trials, batch, *args, per_trial=None, **kw):
         calls.append((list(methods), trials, batch))
+        for m in methods:  # the run's index in the trials' successes, to tell the runs apart
+            per_trial[m] = {"success": np.full(trials, float(len(calls)))}
         return [_table2_row(m, 1.0 if len(calls) > 1 else 0.0) for m in methods], {}
 
     monkeypatch.setattr(ev, "evaluate_multi", fake_multi)
@@ -331,6 +333,10 @@ def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
     assert [r["success_pct"] for r in doc["rows"]] == [50.0, 50.0, 0.0]  # detection: the rerun's
     assert doc["wall_s"] == pytest.approx(30.0)
     assert doc["settings"]["methods"] == ["random", "detection", "estimator"]
+    with np.load(out / "table2_trials.npz") as z:  # per-trial outcomes: each row's own run
+        assert {k: z[k].tolist() for k in z.files} == {
+            "random/success": [2.0, 2.0], "detection/success": [2.0, 2.0],
+            "estimator/success": [1.0, 1.0]}
     md = (out / "table2.md").read_text()
     assert md.index("| random |") < md.index("| detection |") < md.index("| estimator |")
     with pytest.raises(SystemExit):
@@ -340,6 +346,8 @@ def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
         table2.merge_rows(doc, [], {**doc["settings"], "trials": 3})
     assert ev.main(base[:-2] + ["--out", str(out), "--methods", "lookup", "--fresh"]) == 0
     assert [r["method"] for r in json.loads((out / "table2.json").read_text())["rows"]] == ["lookup"]
+    with np.load(out / "table2_trials.npz") as z:
+        assert z.files == ["lookup/success"]
 
 
 def test_run_batches_covers_each_trial_once_and_reports_progress():
