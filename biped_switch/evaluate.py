@@ -185,6 +185,17 @@ def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list
     return out
 
 
+def _lock(out: pathlib.Path):
+    """An exclusive lock on OUT/.table2.lock (released when the returned file is closed), so that
+    two `evaluate multi` runs of other methods into one table read and write it in turn."""
+    import fcntl
+
+    out.mkdir(parents=True, exist_ok=True)
+    f = (out / ".table2.lock").open("w")
+    fcntl.flock(f, fcntl.LOCK_EX)
+    return f
+
+
 def save_trials(path: pathlib.Path, per_trial: dict, keep: set) -> None:
     """Per-trial outcomes as `<method>/<field>` arrays, joined with those already in `path` for
     the methods of the table (`keep`) that this run did not redo."""
@@ -225,6 +236,8 @@ def _main_multi(a, p) -> int:
                                   dqn_dir=a.dqn, n_artifacts=a.n_artifacts, backend=a.backend,
                                   per_trial=per_trial)
     session_s = time.perf_counter() - t0
+    lock = _lock(pathlib.Path(a.out))  # another `evaluate multi` may have added rows meanwhile
+    old = None if a.fresh or not json_path.exists() else json.loads(json_path.read_text())
     rows = merge_rows(old, rows, settings)
     have = {r["method"] for r in rows}
     skipped = [sk for sk in skipped if sk.split(":")[0] not in have]
@@ -250,6 +263,7 @@ def _main_multi(a, p) -> int:
          "device": str(jax.devices()[0]), "backend": sorted({r["backend"] for r in rows}),
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
     save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
+    lock.close()
     if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
         s = setups["stand"]
         rec = trace_trial(s, "estimator", a.fig5_trial % a.trials, a.seed)
