@@ -355,17 +355,34 @@ def load_estimator(path) -> tuple[dict, dict]:
 def load_estimator_set(init: str, model_dir="models/estimators", targets: Sequence[str] = TARGETS
                        ) -> tuple[dict, list[dict]]:
     """(params stacked along a leading axis of len(targets), metas) of `<model_dir>/<init>_<target>`."""
-    params, metas = [], []
+    paths = []
     for t in targets:
         path = pathlib.Path(model_dir) / f"{init}_{t}"
         if not path.exists():
             raise FileNotFoundError(f"no estimator at {path}; train it with "
                                     f"`python -m biped_switch.estimator --init {init} --targets {t} "
                                     f"--out {model_dir}`")
-        p, m = load_estimator(path)
-        params.append(p)
-        metas.append(m)
-    return stack_params(params), metas
+        paths.append(path)
+    return load_estimator_paths(paths)
+
+
+def load_estimator_paths(paths) -> tuple[dict, list[dict]]:
+    """(params stacked along a leading axis, metas) of the estimators at `paths`, in order."""
+    loaded = [load_estimator(p) for p in paths]
+    return stack_params([p for p, _ in loaded]), [m for _, m in loaded]
+
+
+def context_estimator_paths(init: str, model_dir="models/estimators",
+                            targets: Sequence[str] = TARGETS) -> list[pathlib.Path] | None:
+    """Per target, `<init>_context_<t>` (trained on a context sweep) where it exists, else the
+    plain `<init>_<t>`: a context sweep may cover only the targets whose switches fail in context.
+    None when no context estimator exists, or a target has neither."""
+    d = pathlib.Path(model_dir)
+    ctx = [d / f"{init}_context_{t}" for t in targets]
+    if not any(p.exists() for p in ctx):
+        return None
+    paths = [c if c.exists() else d / f"{init}_{t}" for c, t in zip(ctx, targets)]
+    return paths if all(p.exists() for p in paths) else None
 
 
 # -------------------------------------------------------------------------------------- CLI
@@ -454,18 +471,23 @@ def main(argv=None) -> int:
     p.add_argument("--batch-size", type=int, default=None)
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--log-every", type=int, default=50, help="progress line every N epochs")
+    p.add_argument("--context", action="store_true",
+                   help="train on the context sweep (`sweep --context`: DATA/<init>_context/); "
+                        "checkpoints and results are named <init>_context_<target>")
     a = p.parse_args(argv)
+    name = f"{a.init}_context" if a.context else a.init
 
     cfg = default_estimator_config()
     for k in ("epochs", "batch_size", "seed"):
         if getattr(a, k) is not None:
             cfg[k] = getattr(a, k)
-    files = {t: pathlib.Path(a.data) / a.init / f"{t}.npz" for t in a.targets}
+    files = {t: pathlib.Path(a.data) / name / f"{t}.npz" for t in a.targets}
     missing = [t for t, f in files.items() if not f.exists()]
     if missing:
         for t in missing:
             print(f"error: missing sweep data {files[t]}; make it with "
-                  f"`python -m biped_switch.sweep --init {a.init} --target {t}`", file=sys.stderr)
+                  f"`python -m biped_switch.sweep --init {a.init} --targets {t}"
+                  f"{' --context' if a.context else ''}`", file=sys.stderr)
         return 2
     results = pathlib.Path(a.results)
     results.mkdir(parents=True, exist_ok=True)
@@ -474,13 +496,14 @@ def main(argv=None) -> int:
     for t, f in files.items():
         data = load_data(f)
         params, metrics = train_estimator(data, cfg, print_fn=log, log_every=a.log_every,
-                                          name=f"{a.init}/{t}")
+                                          name=f"{name}/{t}")
         history = metrics.pop("history")
-        meta = {"target": t, "init": a.init, "data_file": str(f), "config": cfg.to_dict(),
+        meta = {"target": t, "init": a.init, "context": a.context, "data_file": str(f),
+                "config": cfg.to_dict(),
                 "metrics": metrics, "sweep_meta": data.get("meta"),
                 "input": {"state_size": STATE_SIZE, "hm_size": HM_SIZE}}
-        ckpt = save_estimator(pathlib.Path(a.out) / f"{a.init}_{t}", params, meta)
-        stem = results / f"{a.init}_{t}"
+        ckpt = save_estimator(pathlib.Path(a.out) / f"{name}_{t}", params, meta)
+        stem = results / f"{name}_{t}"
         (stem.with_suffix(".json")).write_text(json.dumps(
             {k: v for k, v in meta.items() if k != "sweep_meta"} | {"checkpoint": str(ckpt)},
             indent=2, default=_jsonable))
@@ -488,11 +511,11 @@ def main(argv=None) -> int:
             fh.write("epoch," + ",".join(history) + "\n")
             for i, row in enumerate(zip(*history.values()), 1):
                 fh.write(f"{i}," + ",".join(f"{v:.6g}" for v in row) + "\n")
-        plot_history(history, stem.with_suffix(".png"), f"switch estimator {a.init}/{t}")
-        log(f"[{a.init}/{t}] val acc {metrics['val_acc']:.3f}  AUC {metrics['val_auc']:.3f}  "
+        plot_history(history, stem.with_suffix(".png"), f"switch estimator {name}/{t}")
+        log(f"[{name}/{t}] val acc {metrics['val_acc']:.3f}  AUC {metrics['val_auc']:.3f}  "
             f"saved {ckpt}")
         rows.append((t, metrics))
-    log(f"\nswitch estimators, init {a.init}:\n"
+    log(f"\nswitch estimators, {name}:\n"
         "| target | points (train / val) | val acc | val AUC | train s |\n|---|---|---|---|---|")
     for t, m in rows:
         log(f"| {t} | {m['points_total']:,} ({m['train_points']:,} / {m['val_points']:,}) | "

@@ -18,6 +18,15 @@ after the last part; the parts are merged into runs/sweeps/<init>/<target>.npz (
 input, see estimator.py for the fields). The lookup table (success rate per 1 cm of switch
 distance for each pair j -> i, and its argmax) and the success-against-distance figure (the
 paper's Fig. 4b) go to experiments/results/lookup/.
+
+    python -m biped_switch.sweep --init stand --context [--targets gaps]
+
+A *context* sweep (ours, not the paper's) switches where the switching controller does on a
+`mixed` track: an artifact policy j first crosses its own artifact and hands over before the next
+one, of kind i (two-artifact tracks [j, i]); walk, which only ever acts before the first artifact,
+switches before an [i, other] track's first. The paper's sweep starts every source on flat ground,
+so its data never hold the states just after an artifact, where Table II's switches happen. Data,
+lookup table and figure are named `<init>_context`.
 """
 
 from __future__ import annotations
@@ -37,7 +46,8 @@ import numpy as np
 from biped_switch import env as env_lib
 from biped_switch import policies as pol
 from biped_switch import terrain
-from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config
+from biped_switch.config import (SWEEP_TRACK_SEED, default_env_config, default_sweep_config,
+                                 default_terrain_config)
 from biped_switch.estimator import HM_SIZE, load_data
 from biped_switch.rollout import episode_keys, over_devices, reset_by_track, run_episodes
 from biped_switch.switching import smoothed_success_pct
@@ -151,8 +161,9 @@ def window_fill(w: Window) -> jax.Array:
 # ----------------------------------------------------------------------- the rollout
 def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, switch_max_m: float,
                   steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0,
-                  end_offset_m: float = 0.0) -> dict:
-    """A batch of switch episodes on single-artifact tracks (one env per track id).
+                  end_offset_m: float = 0.0, target_index=None) -> dict:
+    """A batch of switch episodes (one env per track id), switching before artifact
+    `target_index` (B,) of each track (default 0: the first; context sweeps switch before the 2nd).
 
     `sources` (B,) policy index acting before the switch, `target` the index switched to;
     `guide_scale` > 0 turns the scripted gait's guide forces on and `end_offset_m` moves the line
@@ -162,6 +173,8 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     reset_keys, k_u = episode_keys(rng, n)
     state = reset_by_track(env, reset_keys, track_ids, guide_scale=guide_scale)
     switch_at = jax.random.uniform(k_u, (n,), maxval=switch_max_m)
+    tidx = (jnp.zeros(n, jnp.int32) if target_index is None
+            else jnp.asarray(target_index, jnp.int32))
     carry = {"active": sources.astype(jnp.int32), "switched": jnp.zeros(n, bool),
              "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
              "win": jax.vmap(window_init)(state.obs)}
@@ -170,7 +183,8 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     def act(c, state, live, _):
         si = jax.vmap(env.switch_inputs)(state)
         det = si["detect"]
-        now = live & ~c["switched"] & (det["kind"] >= 0) & (det["dist_m"] <= switch_at)
+        now = (live & ~c["switched"] & (det["kind"] >= 0) & (det["index"] == tidx)
+               & (det["dist_m"] <= switch_at))
         active = jnp.where(now, target, c["active"])
         win = jax.vmap(window_update)(c["win"], state.obs, now, c["switched"] & live)
         action = pol.select(pol.all_actions(apply, params, state.obs), active)
@@ -182,7 +196,8 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
         # touchdowns counted on the observation's own contact flags (this step vs the last)
         lab = label_steps(c["lab"], live, switched_before, c["switched"], si["contact"],
                           si["contact_prev"], si["soles"][..., 0],
-                          state.info["art_x1"][:, 0] + end_offset_m,
+                          jnp.take_along_axis(state.info["art_x1"], tidx[:, None], 1)[:, 0]
+                          + end_offset_m,
                           nxt.metrics["fell"] > 0.5, nxt.metrics["success"] > 0.5, nxt.done > 0.5)
         return {**c, "lab": lab}, lab.ended  # a label (or a fall) ends the episode
 
@@ -208,14 +223,56 @@ def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **o
                             seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
 
 
-def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0):
-    """(params, rng, track_ids, sources) -> batch results, split over all local devices."""
+def context_plan(target: str, n_tracks: int) -> tuple[list[list[str]], np.ndarray, np.ndarray]:
+    """(artifact kinds, source policy, target artifact index) per track of a context sweep.
+
+    Track i's source cycles over the other policies. On a `mixed` track an artifact policy hands
+    over after crossing its own artifact, and walk only before the first: so an artifact source
+    gets [its kind, target] and switches before the 2nd artifact; walk gets [target, another kind]
+    and switches before the 1st (the plain sweep's situation)."""
+    others = [j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]]
+    kinds, src, tidx = [], [], []
+    for i in range(n_tracks):
+        j = others[i % len(others)]
+        name = pol.POLICY_NAMES[j]
+        if name == "walk":
+            after = [k for k in terrain.ARTIFACT_KINDS if k != target]
+            kinds.append([target, after[(i // len(others)) % len(after)]])
+            tidx.append(0)
+        else:
+            kinds.append([name, target])
+            tidx.append(1)
+        src.append(j)
+    return kinds, np.asarray(src, np.int32), np.asarray(tidx, np.int32)
+
+
+def make_context_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
+    """Two-artifact tracks SWEEP_TRACK_SEED + i laid out by `context_plan`."""
+    kinds, _, _ = context_plan(target, n_tracks)
+    tcfg = default_terrain_config(2)
+    tracks = [terrain.sequence_track(SWEEP_TRACK_SEED + i, k, 1.0, tcfg)
+              for i, k in enumerate(kinds)]
+    cfg = default_env_config()
+    cfg.kind, cfg.init, cfg.n_tracks, cfg.seed, cfg.difficulty = (
+        "mixed", init, n_tracks, SWEEP_TRACK_SEED, difficulty)
+    for k, v in overrides.items():
+        if k not in cfg:
+            raise KeyError(f"unknown env config key {k!r}")
+        cfg[k] = v
+    return env_lib.BipedEnv(cfg, tracks=tracks, terrain_cfg=tcfg)
+
+
+def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_index=None):
+    """(params, rng, track_ids, sources) -> batch results, split over all local devices;
+    `target_index` (n_tracks,) the artifact switched before on each track (default: the first)."""
     horizon = int(round(cfg.horizon_s / env.dt))
     tgt = pol.POLICY_INDEX[target]
+    tidx_of = None if target_index is None else jnp.asarray(target_index, jnp.int32)
 
     def one(params, rng, ids, src):
         return sweep_rollout(env, apply, params, rng, ids, src, tgt, cfg.switch_max_m,
-                             cfg.steps_past, horizon, guide_scale=guide_scale)
+                             cfg.steps_past, horizon, guide_scale=guide_scale,
+                             target_index=None if tidx_of is None else tidx_of[ids])
 
     return over_devices(one, n_shared=1)
 
@@ -323,13 +380,14 @@ def _part(out: dict, first_sample: int, window) -> tuple[dict, int]:
 
 # Every session adding parts to a sweep must share these; of the config only the keys below may
 # differ (more points extend a sweep; the lookup bin applies to the merged data only).
-RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed")
+RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed", "context")
 PROGRESS_CONFIG_KEYS = ("n_points", "lookup_bin_m")
 
 
 def resume_key(meta: dict) -> dict:
     """The part of a sweep's meta (as JSON) that the parts already made depend on."""
     key = json.loads(json.dumps({k: meta.get(k) for k in RESUME_KEYS}, default=str))
+    key["context"] = bool(key["context"])  # absent in sweeps made before context sweeps existed
     key["config"] = {k: v for k, v in (key["config"] or {}).items()
                      if k not in PROGRESS_CONFIG_KEYS}
     return key
@@ -347,11 +405,17 @@ class SweepRun(NamedTuple):
     wall_s_total: float  # the sweep's wall time summed over the sessions that made points
 
 
+def sweep_name(init: str, context: bool = False) -> str:
+    """The folder and file stem of a sweep: `<init>` or `<init>_context`."""
+    return f"{init}_context" if context else init
+
+
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
               n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
-              print_fn=print, backend: str = "auto") -> SweepRun:
+              print_fn=print, backend: str = "auto", context: bool = False) -> SweepRun:
     """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind, on the
-    physics `backend`, in an env with the policy suite's env overrides.
+    physics `backend`, in an env with the policy suite's env overrides. With `context`, the
+    tracks are `context_plan`'s two-artifact tracks and the data go to `<init>_context/`.
 
     part_dir/meta.json keeps `wall_s_total`, the sum of the wall times of the sessions that ran
     batches; it is updated after every part and on an exception, so an interrupted session's time
@@ -359,16 +423,22 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
     t_start = time.perf_counter()
     if target not in terrain.ARTIFACT_KINDS:
         raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
-    part_dir = out_dir / init / target
+    name = sweep_name(init, context)
+    part_dir = out_dir / name / target
     part_dir.mkdir(parents=True, exist_ok=True)
-    env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend,
-                   **pol.suite_env_overrides(init, runs, stand_in=stand_in))
+    overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in)
+    if context:
+        _, track_src, track_tidx = context_plan(target, n_tracks)
+        env = make_context_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
+    else:
+        track_src = track_tidx = None
+        env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
     suite = pol.load_suite(init, env, runs, stand_in=stand_in)
     meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
             "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
             "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale,
             "env_overrides": dict(suite.env_overrides),
-            "backend": env_lib.resolve_backend(backend)}
+            "backend": env_lib.resolve_backend(backend), "context": bool(context)}
     meta_path = part_dir / "meta.json"
     wall0 = 0.0
     if meta_path.exists():
@@ -388,12 +458,12 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
 
     write_meta(wall0)
     others = np.array([j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]])
-    runner = make_runner(env, suite.apply, target, cfg, guide_scale)
+    runner = make_runner(env, suite.apply, target, cfg, guide_scale, track_tidx)
     parts = sorted(part_dir.glob("part_*.npz"))
     have = sum(int(np.load(p)["label"].shape[0]) for p in parts)
     b = len(parts)
     if have:
-        print_fn(f"[sweep {init}/{target}] resuming: {len(parts)} parts, {have:,} points")
+        print_fn(f"[sweep {name}/{target}] resuming: {len(parts)} parts, {have:,} points")
     t0, pts0 = time.perf_counter(), have
     steady_points, steady_s = 0, 0.0
     batch = cfg.batch
@@ -404,7 +474,8 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
             t_b = time.perf_counter()
             idx = np.arange(b * batch, (b + 1) * batch)
             ids = jnp.asarray(idx % n_tracks, jnp.int32)
-            src = jnp.asarray(others[idx % len(others)], jnp.int32)
+            src = jnp.asarray(others[idx % len(others)] if track_src is None
+                              else track_src[idx % n_tracks], jnp.int32)
             rng = jax.random.fold_in(jax.random.PRNGKey(seed), b)
             out = jax.device_get(runner(suite.params, rng, ids, src))
             part, n_s = _part(out, b * batch, cfg.window)
@@ -419,7 +490,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
             b += 1
             left_min = max(cfg.n_points - have, 0) / max(
                 (have - pts0) / max(time.perf_counter() - t0, 1e-9), 1e-9) / 60
-            print_fn(f"[sweep {init}/{target}] batch {b}: {n_s}/{batch} valid samples, "
+            print_fn(f"[sweep {name}/{target}] batch {b}: {n_s}/{batch} valid samples, "
                      f"{100 * part['label'].mean() if n_s else float('nan'):.0f}% success; "
                      f"{have:,}/{cfg.n_points:,} points, {n_p / max(dt, 1e-9):,.0f} points/s this "
                      f"batch ({dt:.1f} s), ~{left_min:.1f} min left")
@@ -427,7 +498,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
                 raise RuntimeError(f"no valid switch sample in {b} batches: the source policies "
                                    f"fall before the switch point (untrained policies?)")
         loop_s = time.perf_counter() - t0
-        path = merge_parts(part_dir, out_dir / init / f"{target}.npz", meta)
+        path = merge_parts(part_dir, out_dir / name / f"{target}.npz", meta)
     finally:  # the session's time, an interrupted one's too
         session_s = time.perf_counter() - t_start
         if ran:
@@ -466,8 +537,10 @@ def save_lookup(tables: dict, init: str, out: pathlib.Path, meta: dict) -> dict:
                       for k, t in tables.items()},
            "meta": meta}
     (out / f"lookup_{init}.json").write_text(json.dumps(doc, indent=1, default=str))
+    what = (f"{init.removesuffix('_context')} init, after the source's own artifact"
+            if init.endswith("_context") else f"{init} init")
     plot_switch_success(tables, out / f"fig4b_{init}.png",
-                        f"{init} init: switch success against distance (sweep data)")
+                        f"{what}: switch success against distance (sweep data)")
     return doc
 
 
@@ -478,6 +551,34 @@ def load_lookup(init: str, results: str | pathlib.Path = "experiments/results/lo
         raise FileNotFoundError(f"{path} missing: run `python -m biped_switch.sweep --init {init}`")
     m = json.loads(path.read_text())["matrix_m"]
     return np.array([[np.nan if v is None else v for v in row] for row in m])
+
+
+def load_context_lookup(init: str, results: str | pathlib.Path = "experiments/results/lookup"
+                        ) -> tuple[np.ndarray, list[str]]:
+    """(P, 3) switch distances of the context sweep (`lookup_<init>_context.json`), each target
+    it has no table for taken from the plain `lookup_<init>.json`; and per target, the file used."""
+    results = pathlib.Path(results)
+    name = sweep_name(init, True)
+    if lookup_missing(name, results) is None:
+        raise FileNotFoundError(f"{results / f'lookup_{name}.json'} missing: run "
+                                f"`python -m biped_switch.sweep --init {init} --context`")
+    m, used = load_lookup(name, results), []
+    missing = lookup_missing(name, results)
+    for i, k in enumerate(terrain.ARTIFACT_KINDS):
+        if k in missing:
+            m[:, i] = load_lookup(init, results)[:, i]
+        used.append(f"{k}: {results / f'lookup_{init if k in missing else name}.json'}")
+    return m, used
+
+
+def context_lookup_missing(init: str, results: str | pathlib.Path = "experiments/results/lookup"
+                           ) -> list[str] | None:
+    """Targets neither the context lookup nor the plain one covers (None: no context lookup)."""
+    ctx = lookup_missing(sweep_name(init, True), results)
+    if ctx is None:
+        return None
+    plain = lookup_missing(init, results)
+    return [k for k in ctx if plain is None or k in plain]
 
 
 def lookup_missing(init: str, results: str | pathlib.Path = "experiments/results/lookup"
@@ -531,7 +632,11 @@ def main(argv=None) -> int:
     p.add_argument("--difficulty", type=float, default=None, help="terrain difficulty (default 1)")
     p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+    p.add_argument("--context", action="store_true",
+                   help="switch after the source policy has crossed its own artifact, as on mixed "
+                        "tracks (two-artifact tracks; data and lookup named <init>_context)")
     a = p.parse_args(argv)
+    name = sweep_name(a.init, a.context)
     cfg = default_sweep_config()
     if a.points is not None:
         cfg.n_points = a.points
@@ -543,16 +648,16 @@ def main(argv=None) -> int:
     if cfg.n_points < 1 or cfg.batch < 1:
         p.error("--points and --batch must be >= 1")
     out = pathlib.Path(a.out)
-    lookup_path = pathlib.Path(a.results) / f"lookup_{a.init}.json"
+    lookup_path = pathlib.Path(a.results) / f"lookup_{name}.json"
     stored_doc = json.loads(lookup_path.read_text()) if lookup_path.exists() else {}
     stored = stored_doc.get("meta", {}).get("sweeps", {})
     data, stats = {}, {}
     for target in a.targets:
-        print(f"sweep {a.init}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
+        print(f"sweep {name}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
               f"{jax.local_device_count()} {jax.devices()[0].platform} device(s)", flush=True)
         run = run_sweep(a.init, target, cfg, out, a.runs, a.seed, a.tracks, a.stand_in,
                         a.guide_scale, print_fn=lambda *s: print(*s, flush=True),
-                        backend=a.backend)
+                        backend=a.backend, context=a.context)
         data[target] = load_data(run.path)
         stats[target] = {**data_stats(data[target], run.path, run.wall_s_total),
                          "points_new": run.points_new, "session_s": round(run.session_s, 1),
@@ -561,14 +666,14 @@ def main(argv=None) -> int:
                          "points_per_s_steady": rate_or_none(run.steady_points, run.steady_s),
                          "device": str(jax.devices()[0]),
                          "backend": env_lib.resolve_backend(a.backend)}
-        print(json.dumps({"sweep": f"{a.init}/{target}", **stats[target]}), flush=True)
+        print(json.dumps({"sweep": f"{name}/{target}", **stats[target]}), flush=True)
     for target in terrain.ARTIFACT_KINDS:  # the lookup table covers every target swept so far
-        path = out / a.init / f"{target}.npz"
+        path = out / name / f"{target}.npz"
         if target not in data and path.exists():
             data[target] = load_data(path)
             st = stored_stats(data[target], path, stored.get(target, {}))
             if st is None:
-                print(f"no sweep time recorded for {a.init}/{target}: left out of meta.sweeps",
+                print(f"no sweep time recorded for {name}/{target}: left out of meta.sweeps",
                       file=sys.stderr)
             else:
                 stats[target] = st
@@ -581,11 +686,11 @@ def main(argv=None) -> int:
             tables[target] = table_from_rates(rate, t["count"], target, cfg.lookup_bin_m)
             stats[target] = stored.get(target, {})
             policies[target] = stored_doc["meta"].get("policies", {}).get(target)
-            print(f"lookup {a.init}/{target}: kept from {lookup_path} (its sweep data is not under "
+            print(f"lookup {name}/{target}: kept from {lookup_path} (its sweep data is not under "
                   f"{out}/)", flush=True)
     tables = {k: tables[k] for k in terrain.ARTIFACT_KINDS if k in tables}
     meta = {"sweeps": stats, "policies": policies}
-    doc = save_lookup(tables, a.init, pathlib.Path(a.results), meta)
+    doc = save_lookup(tables, name, pathlib.Path(a.results), meta)
     print("lookup table (best switch distance [m], active -> target):")
     for k, v in doc["best_m"].items():
         if v is not None:

@@ -17,6 +17,7 @@ import math
 import pathlib
 import time
 import warnings
+from typing import Sequence
 
 import jax
 import numpy as np
@@ -38,7 +39,15 @@ from biped_switch.stats import dist_success_cells, episode_table, pct_ci, pct_ci
 SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
                   "estimator_no_overlap")
 BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain (issue 5)
-MULTI_METHODS = SWITCH_METHODS + BASELINES
+# Ours, beyond the paper: lookup table and estimators from the context sweeps (`sweep --context`),
+# whose switches come after the source policy's own artifact, as on these tracks.
+CONTEXT_METHODS = ("lookup_context", "estimator_context")
+MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS
+
+
+def switch_rule(method: str) -> str:
+    """The switching.METHODS rule a Table II switching method applies."""
+    return "estimator" if method == "estimator_no_overlap" else method.removesuffix("_context")
 
 
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
@@ -56,10 +65,22 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
               and runs_lib.find_policy(first, init, runs) is None):
             skipped.append(f"{m}: no {init}-init walk policy under {runs}/ or models/policies/")
             continue
-        if m.startswith("estimator") and not all(
+        if m == "estimator_context":
+            if est_lib.context_estimator_paths(init, est_dir) is None:
+                skipped.append(f"{m}: no {init}_context estimator in {est_dir} (python -m "
+                               f"biped_switch.estimator --init {init} --context), or a target has "
+                               f"no estimator at all")
+                continue
+        elif m.startswith("estimator") and not all(
                 (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
             skipped.append(f"{m}: no {init}-init estimators in {est_dir} (make train-estimators)")
             continue
+        if m == "lookup_context":
+            missing = sweep.context_lookup_missing("stand", lookup_dir)
+            if missing is None or missing:
+                skipped.append(f"{m}: no context lookup table covering every target in {lookup_dir}"
+                               f" (python -m biped_switch.sweep --init stand --context)")
+                continue
         if m == "lookup":
             missing = sweep.lookup_missing("stand", lookup_dir)
             if missing is None:
@@ -117,7 +138,8 @@ class MultiSetup:
 
     def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
                  est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
-                 guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto"):
+                 guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto",
+                 need_context: Sequence[str] = ()):
         self.init = init
         self.env = multi_env(init, trials, n_artifacts, backend=backend,
                              **pol.suite_env_overrides(init, runs, stand_in=stand_in))
@@ -127,6 +149,29 @@ class MultiSetup:
             self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
             self.est_apply = est_lib.predict
         self.lookup_m = sweep.load_lookup(init, lookup_dir) if need_lookup else None
+        # the context methods' estimators and lookup: same shapes, so the same compiled rollout
+        self.variants, self.parts = {}, {}
+        if need_estimators:
+            self.parts["estimator"] = [f"{k}: {pathlib.Path(est_dir) / f'{init}_{k}'}"
+                                       for k in terrain.ARTIFACT_KINDS]
+        if need_lookup:
+            self.parts["lookup"] = [f"{k}: {pathlib.Path(lookup_dir) / f'lookup_{init}.json'}"
+                                    for k in terrain.ARTIFACT_KINDS]
+        if "estimator_context" in need_context:
+            paths = est_lib.context_estimator_paths(init, est_dir)
+            if paths is None:
+                raise FileNotFoundError(f"no {init}_context estimators in {est_dir}")
+            params, _ = est_lib.load_estimator_paths(paths)
+            self.est_apply = est_lib.predict
+            if self.est_params is None:  # a compiled rollout needs some set for the other methods
+                self.est_params = params
+            self.variants["estimator_context"] = {"est_params": params}
+            self.parts["estimator_context"] = [f"{k}: {p}" for k, p in
+                                               zip(terrain.ARTIFACT_KINDS, paths)]
+        if "lookup_context" in need_context:
+            m, used = sweep.load_context_lookup(init, lookup_dir)
+            self.variants["lookup_context"] = {"lookup_m": m}
+            self.parts["lookup_context"] = used
         self.horizon = int(round(horizon_s / self.env.dt))
 
         env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon
@@ -140,8 +185,11 @@ class MultiSetup:
         self.guide_scale = guide_scale
 
     def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
-        rules = sw.make_rules(method, lookup_m=self.lookup_m)
-        return _run_batches(lambda rng, ids: self.run(self.suite.params, self.est_params, rules,
+        """Table II method `method` (a switching.METHODS rule, or a context variant)."""
+        var = self.variants.get(method, {})
+        rules = sw.make_rules(switch_rule(method), lookup_m=var.get("lookup_m", self.lookup_m))
+        est_params = var.get("est_params", self.est_params)
+        return _run_batches(lambda rng, ids: self.run(self.suite.params, est_params, rules,
                                                       rng, ids), trials, self.batch, seed, print_fn,
                             f"{self.init}/{method}")
 
@@ -222,12 +270,12 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         else:
             if init not in setups:
                 need_est = ("estimator_no_overlap" if init == "random" else "estimator") in methods
+                need_ctx = [m for m in CONTEXT_METHODS if m in methods] if init == "stand" else []
                 setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
                                           lookup_dir, need_est,
                                           "lookup" in methods and init == "stand", guide_scale,
-                                          n_artifacts, backend)
-            rule = "estimator" if method == "estimator_no_overlap" else method
-            merged = setups[init].evaluate(rule, trials, seed, print_fn)
+                                          n_artifacts, backend, need_context=need_ctx)
+            merged = setups[init].evaluate(method, trials, seed, print_fn)
             sources = setups[init].suite.sources
         if per_trial is not None:
             per_trial[method] = {k: np.asarray(merged[k]) for k in TRIAL_FIELDS if k in merged}
@@ -236,6 +284,11 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
                    switches_per_trial=float(np.mean(merged["n_switches"])),
                    policies=list(sources), backend=env.backend)
+        if method not in BASELINES:
+            parts = setups[init].parts.get(
+                "estimator" if method == "estimator_no_overlap" else method)
+            if parts:
+                row["switch_parts"] = parts  # the estimators or lookup file per target
         rows.append(row)
         print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
                  f"  ({row['wall_s']:.0f} s)")
@@ -332,6 +385,9 @@ def table2_provenance(doc: dict, path, print_fn=print) -> list[str]:
                 print_fn(f"    {src}")
             subs[r["init"]] = [x.split(":")[0].removeprefix("stand-in for ")
                                for x in prov.stand_ins(srcs)]
+    for r in rows:
+        if r.get("switch_parts"):
+            print_fn(f"  {r['method']} switches with: " + "; ".join(r["switch_parts"]))
     subs = {k: v for k, v in subs.items() if v}
     if subs:
         reasons.append("stand-in policies: " + "; ".join(f"{k} init {', '.join(v)}"

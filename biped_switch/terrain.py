@@ -177,20 +177,46 @@ def generate_track(seed: int, kind: str, difficulty: float = 1.0, cfg=None) -> T
     check_difficulty(difficulty)
     cfg = cfg or default_terrain_config()
     rng = np.random.default_rng([int(seed), KINDS.index(kind)])
+
+    def next_kind(prev):
+        if kind == "mixed":
+            choices = [k for k in ARTIFACT_KINDS if k != prev]
+            return choices[int(rng.integers(len(choices)))]
+        return kind
+
+    return _build_track(rng, cfg, kind, int(seed), difficulty, next_kind, cfg.n_artifacts)
+
+
+def sequence_track(seed: int, kinds: Sequence[str], difficulty: float = 1.0, cfg=None) -> Track:
+    """A `mixed` track whose artifacts are `kinds`, in order (the context sweeps: a source policy
+    crosses its own artifact, then switches before the next). Sizes and flats are drawn as in
+    `generate_track`; `kinds` may not exceed the config's n_artifacts (the bank's padding)."""
+    check_difficulty(difficulty)
+    cfg = cfg or default_terrain_config()
+    bad = [k for k in kinds if k not in ARTIFACT_KINDS]
+    if bad or not kinds:
+        raise ValueError(f"sequence kinds must be a non-empty list of {ARTIFACT_KINDS}, got {list(kinds)}")
+    if len(kinds) > cfg.n_artifacts:
+        raise ValueError(f"{len(kinds)} kinds but the terrain config allows {cfg.n_artifacts} artifacts")
+    codes = [ARTIFACT_KINDS.index(k) for k in kinds]
+    rng = np.random.default_rng([int(seed), KINDS.index("mixed"), 1 + len(kinds), *codes])
+    it = iter(kinds)
+    return _build_track(rng, cfg, "mixed", int(seed), difficulty, lambda prev: next(it), len(kinds))
+
+
+def _build_track(rng, cfg, kind: str, seed: int, difficulty: float, next_kind, n_artifacts: int
+                 ) -> Track:
+    """The layout both track makers share; `next_kind(previous kind)` names each artifact."""
     width = float(rng.uniform(cfg.width_min_m, cfg.width_max_m))
     segs = _flats(rng, cfg, cfg.start_back_m + cfg.runup_m)
     codes, spans = [], []
     prev = None
-    for _ in range(cfg.n_artifacts):
+    for _ in range(n_artifacts):
         segs += _flats(rng, cfg, cfg.flat_before_m)
         if kind == "walk":
             segs += _flats(rng, cfg, 0.5 * (cfg.segments_min + cfg.segments_max) * cfg.flat_min_m)
             continue
-        if kind == "mixed":
-            choices = [k for k in ARTIFACT_KINDS if k != prev]
-            art = choices[int(rng.integers(len(choices)))]
-        else:
-            art = kind
+        art = next_kind(prev)
         first = len(segs)
         segs += _artifact(rng, cfg, art)
         codes.append(ARTIFACT_KINDS.index(art))
@@ -198,7 +224,7 @@ def generate_track(seed: int, kind: str, difficulty: float = 1.0, cfg=None) -> T
         prev = art
     segs += _flats(rng, cfg, cfg.goal_flat_m)
     return Track(
-        kind=kind, seed=int(seed), difficulty=float(difficulty), width_m=width,
+        kind=kind, seed=seed, difficulty=float(difficulty), width_m=width,
         x_origin_m=-float(cfg.start_back_m), thickness_m=float(cfg.slab_thickness_m),
         segments=np.asarray(segs, dtype=np.float64),
         artifact_codes=np.asarray(codes, dtype=np.int32),

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from biped_switch import config
+from biped_switch import estimator
+from biped_switch import sweep
 from biped_switch import evaluate as ev
 from biped_switch import runs as runs_lib
 from biped_switch import stats
@@ -208,7 +210,8 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
-    assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end"}
+    assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end",
+                        "lookup_context", "estimator_context"}
     assert "make train-dqn" in why["dqn"] and "--policy mixed" in why["end_to_end"]
     assert "random-init walk" in why["estimator_no_overlap"]
     # once the parts exist, every method is available
@@ -221,10 +224,17 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     lookup.mkdir()
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}}}')  # one target swept
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
-    assert "lookup" not in ok and skipped == [
+    assert "lookup" not in ok and skipped[0] == (
         f"lookup: the lookup table in {lookup} has no gaps, stairs (python -m biped_switch.sweep "
-        "--targets gaps stairs)"]
+        "--targets gaps stairs)")
+    assert [s.split(":")[0] for s in skipped[1:]] == ["lookup_context", "estimator_context"]
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
+    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    assert ok == list(table2.SWITCH_METHODS + table2.BASELINES)
+    assert [s.split(":")[0] for s in skipped] == ["lookup_context", "estimator_context"]
+    # a context sweep of one target: the other targets keep the plain sweep's parts
+    (est / "stand_context_gaps").mkdir()
+    (lookup / "lookup_stand_context.json").write_text('{"tables": {"gaps": {}}}')
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.MULTI_METHODS) and skipped == []
     assert runs_lib.find_dqn(runs) == runs / "dqn_stand"
@@ -365,3 +375,37 @@ def test_run_batches_covers_each_trial_once_and_reports_progress():
     assert out["track"].tolist() == [0, 1, 2, 3, 4] and out["success"].tolist() == [1, 0, 1, 0, 1]
     assert len(lines) == 3 and "[stand/x] 2/5 trials, success so far 50.0%" in lines[0]
     assert "5/5 trials, success so far 60.0%" in lines[2] and "~0.0 min left" in lines[2]
+
+
+def test_context_parts_fall_back_per_target_to_the_plain_sweeps(tmp_path):
+    est = tmp_path / "est"
+    for k in ("jumps", "gaps"):
+        (est / f"stand_{k}").mkdir(parents=True)
+    assert estimator.context_estimator_paths("stand", est) is None  # no context estimator
+    (est / "stand_context_stairs").mkdir()
+    assert estimator.context_estimator_paths("stand", est) == [
+        est / "stand_jumps", est / "stand_gaps", est / "stand_context_stairs"]
+    (est / "stand_jumps").rmdir()  # a target with neither
+    assert estimator.context_estimator_paths("stand", est) is None
+
+    look = tmp_path / "lookup"
+    look.mkdir()
+    nan = None
+    plain = [[0.8, 0.7, 0.6], [nan, 0.5, 0.4], [0.3, nan, 0.2], [0.1, 0.15, nan]]
+    ctx = [[nan, 0.33, nan], [nan, 0.44, nan], [nan, nan, nan], [nan, 0.55, nan]]
+    (look / "lookup_stand.json").write_text(json.dumps(
+        {"matrix_m": plain, "tables": {"jumps": {}, "gaps": {}, "stairs": {}}}))
+    assert sweep.context_lookup_missing("stand", look) is None
+    with pytest.raises(FileNotFoundError, match="--context"):
+        sweep.load_context_lookup("stand", look)
+    (look / "lookup_stand_context.json").write_text(json.dumps(
+        {"matrix_m": ctx, "tables": {"gaps": {}}}))
+    assert sweep.context_lookup_missing("stand", look) == []
+    m, used = sweep.load_context_lookup("stand", look)
+    want = np.array([[0.8, 0.33, 0.6], [np.nan, 0.44, 0.4], [0.3, np.nan, 0.2], [0.1, 0.55, np.nan]])
+    np.testing.assert_array_equal(m, want)
+    assert used == [f"jumps: {look / 'lookup_stand.json'}", f"gaps: {look / 'lookup_stand_context.json'}",
+                    f"stairs: {look / 'lookup_stand.json'}"]
+    assert table2.switch_rule("lookup_context") == "lookup"
+    assert table2.switch_rule("estimator_context") == "estimator"
+    assert table2.switch_rule("estimator_no_overlap") == "estimator"

@@ -153,11 +153,43 @@ def guided_batch(env):
 
     params = jnp.arange(4, dtype=jnp.float32)
     src = jnp.asarray([0, 1, 3, 0], jnp.int32)
-    run = jax.jit(lambda rng: sweep.sweep_rollout(
+    run = jax.jit(lambda rng, tidx: sweep.sweep_rollout(
         env, apply, params, rng, jnp.asarray(TRACK_IDS), src, pol.POLICY_INDEX["gaps"],
         switch_max_m=0.9, steps_past=2, horizon=300, guide_scale=1.0,
-        end_offset_m=END_OFFSET_M))
-    return jax.device_get(run(jax.random.PRNGKey(3)))
+        end_offset_m=END_OFFSET_M, target_index=tidx))
+    first = jax.device_get(run(jax.random.PRNGKey(3), jnp.zeros(B, jnp.int32)))
+    # the same batch switching before each track's 2nd artifact (a context sweep), which the
+    # guided robot, stopped at the 1st, never gets near: no switch, so no sample
+    second = jax.device_get(run(jax.random.PRNGKey(3), jnp.ones(B, jnp.int32)))
+    return {**first, "second_artifact": second}
+
+
+def test_context_switch_waits_for_the_target_artifact(guided_batch):
+    out = guided_batch["second_artifact"]
+    assert guided_batch["valid"].any()  # the same robots do switch before the 1st artifact
+    assert not out["valid"].any() and not out["label"].any()
+    assert np.isnan(out["switch_dist_m"]).all()
+
+
+def test_context_plan_by_hand():
+    """Sources cycle over the target's others; an artifact source crosses its own artifact first
+    (switch before the 2nd), walk switches before the 1st (the 2nd cycles over the other kinds)."""
+    kinds, src, tidx = sweep.context_plan("gaps", 6)
+    names = [pol.POLICY_NAMES[j] for j in src]
+    assert names == ["walk", "jumps", "stairs"] * 2
+    assert kinds == [["gaps", "jumps"], ["jumps", "gaps"], ["stairs", "gaps"],
+                     ["gaps", "stairs"], ["jumps", "gaps"], ["stairs", "gaps"]]
+    assert tidx.tolist() == [0, 1, 1, 0, 1, 1]
+    for k, t in zip(kinds, tidx):  # the switch is always into the target's own artifact
+        assert k[t] == "gaps"
+
+
+def test_context_env_lays_out_the_plan():
+    env = sweep.make_context_env("stairs", "stand", 5, backend="mujoco")
+    kinds, _, _ = sweep.context_plan("stairs", 5)
+    codes = [[sweep.terrain.ARTIFACT_KINDS[c] for c in row] for row in env.bank.artifact_codes]
+    assert codes == kinds
+    assert env.bank.artifact_codes.shape == (5, 2)
 
 
 def _label_ref(contact, soles_x, art_end_x, t_switch, fell, success, done, horizon, steps_past=2):
@@ -279,7 +311,7 @@ def fake_sweep(monkeypatch):
     def load_suite(init, env, runs, stand_in=None):
         return pol.PolicySuite(None, None, tuple(f"ckpt_{n}" for n in pol.POLICY_NAMES), overrides)
 
-    def make_runner(env, apply, target, cfg, guide_scale=0.0):
+    def make_runner(env, apply, target, cfg, guide_scale=0.0, target_index=None):
         def run(params, rng, ids, src):
             ids = np.asarray(ids)
             calls.append(int(ids[0]) // batch)  # ids = sample index while n_tracks >= samples

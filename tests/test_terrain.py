@@ -409,3 +409,17 @@ def test_compile_mj_model_too_many_boxes():
     cfg.box_capacity = 0
     with pytest.raises(ValueError, match="box_capacity must be >= 1, got 0"):
         model_lib.compile_mj_model(cfg)
+
+
+def test_sequence_track_follows_the_kinds_and_refuses_bad_ones():
+    cfg = default_terrain_config(3)
+    t = terrain.sequence_track(5, ["stairs", "gaps", "stairs"], 1.0, cfg)
+    assert [k for k, _, _ in t.artifacts] == ["stairs", "gaps", "stairs"]
+    x = [(a, b) for _, a, b in t.artifacts]
+    assert all(b0 + cfg.flat_before_m <= a1 for (_, b0), (a1, _) in zip(x, x[1:]))  # flat between
+    again = terrain.sequence_track(5, ["stairs", "gaps", "stairs"], 1.0, cfg)
+    np.testing.assert_array_equal(t.segments, again.segments)
+    with pytest.raises(ValueError, match="walk"):
+        terrain.sequence_track(5, ["walk"], 1.0, cfg)
+    with pytest.raises(ValueError, match="4 kinds"):
+        terrain.sequence_track(5, ["gaps"] * 4, 1.0, cfg)

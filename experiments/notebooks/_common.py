@@ -59,7 +59,9 @@ from biped_switch.stats import wilson_ci  # noqa: E402
 METHOD_LABELS = {"random": "Random", "detection": "On detection", "lookup": "Lookup table",
                  "com_over_feet": "CoM over feet", "estimator": "Ours (estimator)",
                  "estimator_no_overlap": "Ours no overlap", "dqn": "*DQN",
-                 "end_to_end": "*End-to-end", "ours": "Ours"}
+                 "end_to_end": "*End-to-end", "ours": "Ours",
+                 "lookup_context": "Lookup table (context sweep)",
+                 "estimator_context": "Ours, estimator (context sweep)"}
 
 
 def _env_path(name: str) -> pathlib.Path | None:
