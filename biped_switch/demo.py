@@ -1,16 +1,19 @@
 """`make demo`: the switching pipeline end to end on a CPU, at a small size.
 
-With the committed policies (models/policies/), switch estimators (models/estimators/) and lookup
-table (experiments/results/lookup/), runs every switching method, and the DQN and end-to-end
-baselines where they are trained (models/baselines/dqn_stand, models/policies/mixed_stand), on the
-same two dozen short `mixed` tracks (2 artifacts of different kinds, so that a good policy can
-finish within a time limit a 2-core CPU can afford in under 10 minutes), prints Table II, draws
-the paper's Fig. 5 for one trial of the estimator method and renders that trial to a GIF (offscreen MuJoCo; skipped with a message when no OpenGL
-backend is available). Everything goes to experiments/results/demo/.
+With the committed stand-init policy suite (models/policies/{walk,jumps,gaps,stairs}_stand, or newer
+runs under runs/), switch estimators (models/estimators/) and lookup table
+(experiments/results/lookup/), runs every switching method, the no-overlap ablation where the
+random-init suite is trained, and the DQN and end-to-end baselines where they are trained
+(models/baselines/dqn_stand, models/policies/mixed_stand), on the same two dozen short `mixed`
+tracks (2 artifacts of different kinds, so that a good policy can finish within a time limit a
+2-core CPU can afford in under 10 minutes), prints Table II, draws the paper's Fig. 5 for one trial
+of the estimator method and renders that trial to a GIF (offscreen MuJoCo; skipped with a message
+when no OpenGL backend is available). Everything goes to experiments/results/demo/.
 
-It reports honestly what it ran on: the provenance of every policy is printed and saved, and
-policies that are stand-ins for untrained ones, or runs with the scripted guide forces on, are
-flagged as pipeline checks, not results.
+A missing stand-init policy is an error naming it and the command that trains it; nothing stands
+in for it. It reports honestly what it ran on: the provenance of every policy is printed and saved,
+and policies whose training runs are unfinished (curriculum or push stage not done) are flagged as
+"policies in training, not results".
 """
 
 from __future__ import annotations
@@ -49,13 +52,6 @@ def main(argv=None) -> int:
     p.add_argument("--estimators", default="models/estimators")
     p.add_argument("--lookup", default="experiments/results/lookup")
     p.add_argument("--dqn", default=None, help="DQN run directory (default: RUNS/dqn_stand, then models/baselines/)")
-    p.add_argument("--pipeline-check", default="models/pipeline_check",
-                   help="used when no trained walk policy is found: the committed pipeline-check "
-                        "suite (a short CPU walk run and estimators from stand-in sweeps)")
-    p.add_argument("--stand-in", default="walk", choices=pol.POLICY_NAMES,
-                   help="policy used for any that is not trained (flagged in the output)")
-    p.add_argument("--guide-scale", type=float, default=None,
-                   help="scripted guide forces (default: on only when a policy is a stand-in)")
     p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
     p.add_argument("--no-video", action="store_true")
@@ -65,54 +61,45 @@ def main(argv=None) -> int:
         p.error("--trials and --n-artifacts must be >= 1")
     if a.horizon_s is None:
         a.horizon_s = horizon_for(a.trials, a.n_artifacts)
+    untrained = _untrained(a.runs)
+    if untrained:
+        for n in untrained:
+            print(f"demo: no trained stand-init {n} policy under {a.runs}/ or {runs_lib.COMMITTED_DIR}/"
+                  f"; train it with `python -m biped_switch.train --policy {n} --init stand`",
+                  file=sys.stderr)
+        return 1
     t0 = time.perf_counter()
     out = pathlib.Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    untrained = _untrained(a.runs)
-    if untrained:  # a partial suite would be mostly stand-ins: use the committed check instead
-        print(f"demo: no trained stand-init {', '.join(untrained)} policy in {a.runs}/ or "
-              f"models/policies/")
-        a.runs = a.pipeline_check
-        a.estimators = str(pathlib.Path(a.pipeline_check) / "estimators")
-        a.lookup = "experiments/results/pipeline_check/lookup"
-        print(f"demo: using the pipeline-check suite in {a.pipeline_check}/")
     methods, skipped = table2.available_methods(table2.MULTI_METHODS, a.runs, a.estimators,
-                                                a.lookup, a.dqn, stand_in=a.stand_in)
-    if not methods:
-        print("demo: nothing to run: " + "; ".join(skipped), file=sys.stderr)
-        return 1
-    stand_ins = _untrained(a.runs)
-    guide = a.guide_scale if a.guide_scale is not None else (1.0 if stand_ins else 0.0)
+                                                a.lookup, a.dqn)
+    no_random = _untrained(a.runs, "random")
+    if "estimator_no_overlap" in methods and no_random:  # its suite is the random-init one
+        methods.remove("estimator_no_overlap")
+        skipped.append(f"estimator_no_overlap: no random-init {', '.join(no_random)} policy "
+                       f"(python -m biped_switch.train --policy P --init random)")
     print(f"demo: {len(methods)} methods x {a.trials} mixed {a.n_artifacts}-artifact tracks "
           f"({a.horizon_s:.0f} s limit), then Fig. 5 and a GIF of one trial. Finishes in under 10 "
           f"minutes on 2 CPU cores (about 40% of it compiling the rollouts), about a minute on a GPU.",
           flush=True)
     for s in skipped:
         print(f"  skipped {s}")
-    in_training = [] if stand_ins else _in_training(a.runs)
+    in_training = _in_training(a.runs)
     if in_training:
         print(f"  POLICIES IN TRAINING, NOT RESULTS: {' | '.join(in_training)}", flush=True)
-    if stand_ins or guide > 0:
-        print(f"  PIPELINE CHECK, NOT A RESULT: {', '.join(stand_ins) or 'no'} policies are stand-ins "
-              f"for untrained ones ({a.stand_in} acts in their place); scripted guide forces at "
-              f"{guide:g}. Train the policies (make train-all) for real numbers.", flush=True)
     rows, setups = table2.evaluate_multi(
-        methods, a.trials, a.trials, a.horizon_s, a.seed, a.runs, a.stand_in, a.estimators,
-        a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=guide, dqn_dir=a.dqn,
+        methods, a.trials, a.trials, a.horizon_s, a.seed, a.runs, None, a.estimators,
+        a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=0.0, dqn_dir=a.dqn,
         n_artifacts=a.n_artifacts, backend=a.backend)
     md = table2.table2_markdown(rows)
-    if stand_ins or guide > 0:
-        md = (f"PIPELINE CHECK, NOT A RESULT: stand-ins for {', '.join(stand_ins) or 'none'} "
-              f"({a.stand_in} acts in their place), guide forces {guide:g}; {a.trials} trials of "
-              f"{a.n_artifacts}-artifact tracks, {a.horizon_s:.0f} s limit.\n\n" + md)
-    elif in_training:
+    if in_training:
         md = (f"POLICIES IN TRAINING, NOT RESULTS: {' | '.join(in_training)}; {a.trials} trials "
               f"of {a.n_artifacts}-artifact tracks, {a.horizon_s:.0f} s limit.\n\n" + md)
     print(md)
     (out / "table2_demo.md").write_text(md + "\n")
     summary = {"methods": methods, "skipped": skipped, "trials": a.trials, "horizon_s": a.horizon_s,
                "n_artifacts": a.n_artifacts,
-               "guide_scale": guide, "stand_ins": stand_ins, "in_training": in_training,
+               "guide_scale": 0.0, "in_training": in_training,
                "policies": list(setups["stand"].suite.sources) if "stand" in setups else None,
                "rows": rows, "device": str(jax.devices()[0]),
                "backend": sorted({r["backend"] for r in rows})}
@@ -120,8 +107,8 @@ def main(argv=None) -> int:
     if setup is not None and setup.est_apply is not None:
         rec = fig5.trace_trial(setup, "estimator", 0, a.seed)
         track = table2.trial_track(setup, 0)
-        title = "demo: estimator switching, trial 0" + (" (PIPELINE CHECK: stand-in policies)"
-                                                        if stand_ins else "")
+        title = "demo: estimator switching, trial 0" + (" (policies in training)"
+                                                        if in_training else "")
         fig5.plot_trial(rec, track, out / "fig5_demo.png", title)
         summary["fig5"] = str(out / "fig5_demo.png")
         print(f"wrote {out / 'fig5_demo.png'}")
@@ -158,9 +145,9 @@ def _in_training(runs) -> list[str]:
     return out
 
 
-def _untrained(runs) -> list:
-    """Stand-init behaviour policies with no checkpoint under `runs`/ or models/policies/."""
-    return [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, "stand", pathlib.Path(runs)) is None]
+def _untrained(runs, init: str = "stand") -> list:
+    """Behaviour policies of `init` with no checkpoint under `runs`/ or models/policies/."""
+    return [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, init, pathlib.Path(runs)) is None]
 
 
 def _video(rec: dict, setup, path: pathlib.Path) -> str | None:

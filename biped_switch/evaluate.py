@@ -56,7 +56,8 @@ from biped_switch.paper import TABLE2_FAIL_ORDER
 from biped_switch.policies import POLICY_NAMES
 from biped_switch.runs import BASELINE_DIR, find_policy
 from biped_switch.table1 import HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, table1_markdown
-from biped_switch.table2 import (MULTI_METHODS, available_methods, evaluate_multi, merge_rows,
+from biped_switch.table2 import (MULTI_METHODS, available_methods, evaluate_multi,
+                                 failures_by_context, failures_markdown, merge_rows, mixed_track,
                                  table2_markdown, trial_track)
 from biped_switch.table3 import retrain_cost, table3_markdown
 from biped_switch.terrain import ARTIFACT_KINDS
@@ -99,7 +100,7 @@ def main(argv=None) -> int:
                    help="use this policy for any that is not trained yet (pipeline checks only)")
     m.add_argument("--guide-scale", type=float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
-    m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 (-1: none)")
+    m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 for each estimator method run: fig5_trial<i>[_context] (-1: none)")
     m.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
     m.add_argument("--out", default="experiments/results/table2")
     m.add_argument("--fresh", action="store_true",
@@ -110,7 +111,13 @@ def main(argv=None) -> int:
     r.add_argument("--results", default="experiments/results")
     r.add_argument("--init", default="stand", choices=env_lib.INITS)
     r.add_argument("--out", default="experiments/results/table3")
+    f = sub.add_parser("failures", help="Table II's falls by artifact and the artifact before it")
+    f.add_argument("--out", default="experiments/results/table2",
+                   help="the table2.json and table2_trials.npz of `evaluate multi`; writes "
+                        "failures_by_context.md and .json there")
     a = p.parse_args(argv)
+    if a.cmd == "failures":
+        return _main_failures(pathlib.Path(a.out))
     if a.cmd == "multi":
         return _main_multi(a, p)
     if a.cmd == "retrain-cost":
@@ -207,6 +214,27 @@ def save_trials(path: pathlib.Path, per_trial: dict, keep: set) -> None:
     np.savez_compressed(path, **arrays)
 
 
+def _main_failures(out: pathlib.Path) -> int:
+    trials_path = out / "table2_trials.npz"
+    if not trials_path.exists():
+        print(f"error: {trials_path} missing: run `python -m biped_switch.evaluate multi` first",
+              file=sys.stderr)
+        return 2
+    settings = json.loads((out / "table2.json").read_text())["settings"]
+    tracks = [mixed_track(MULTI_TRACK_SEED + i, settings["n_artifacts"])
+              for i in range(settings["trials"])]
+    by_method = {}
+    with np.load(trials_path) as z:
+        for m in dict.fromkeys(k.split("/")[0] for k in z.files):
+            by_method[m] = failures_by_context(tracks, z[f"{m}/progress_frac"], z[f"{m}/fell"],
+                                               z[f"{m}/fail_kind"])
+    md = failures_markdown(by_method)
+    print(md)
+    (out / "failures_by_context.md").write_text(md + "\n")
+    (out / "failures_by_context.json").write_text(json.dumps(by_method, indent=1))
+    return 0
+
+
 def _main_multi(a, p) -> int:
     if a.trials < 1 or a.batch < 1 or a.n_artifacts < 1:
         p.error(f"--trials, --batch and --n-artifacts must be >= 1 (got {a.trials}, {a.batch}, "
@@ -264,13 +292,16 @@ def _main_multi(a, p) -> int:
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
     save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
     lock.close()
-    if a.fig5_trial >= 0 and "stand" in setups and setups["stand"].est_apply is not None:
+    # Fig. 5 of each estimator method run now (the paper's, and ours on the context sweep)
+    for method, suffix in (("estimator", ""), ("estimator_context", "_context")):
+        if a.fig5_trial < 0 or method not in a.methods or "stand" not in setups:
+            continue
         s = setups["stand"]
-        rec = trace_trial(s, "estimator", a.fig5_trial % a.trials, a.seed)
+        rec = trace_trial(s, method, a.fig5_trial % a.trials, a.seed)
         track = trial_track(s, a.fig5_trial % a.trials)
-        path = out / f"fig5_trial{a.fig5_trial}.png"
-        plot_trial(rec, track, path, f"estimator switching, trial {a.fig5_trial}")
-        np.savez_compressed(out / f"fig5_trial{a.fig5_trial}.npz", **rec,
+        path = out / f"fig5_trial{a.fig5_trial}{suffix}.png"
+        plot_trial(rec, track, path, f"{method} switching, trial {a.fig5_trial}")
+        np.savez_compressed(path.with_suffix(".npz"), **rec,
                             track_seed=MULTI_TRACK_SEED + a.fig5_trial % a.trials,
                             n_artifacts=a.n_artifacts)
         print(f"wrote {path}")

@@ -28,8 +28,8 @@ def repo_path(p) -> pathlib.Path:
 
 
 def is_pipeline_check(path) -> bool:
-    """Whether `path` lies in a pipeline-check tree (experiments/results/pipeline_check,
-    models/pipeline_check, or any other folder named pipeline_check)."""
+    """Whether `path` lies in a pipeline-check tree: any folder named pipeline_check (e.g. the
+    results and runs of one's own check of the pipeline with untrained or stand-in policies)."""
     return "pipeline_check" in pathlib.Path(path).resolve().parts
 
 
@@ -57,9 +57,10 @@ def fmt(v) -> str:
 
 
 def verdict(reasons: list[str], ok: str | None = None) -> str:
-    """One line saying whether the file is a pipeline check or can be read as a result."""
+    """One line saying whether the file can be read as a result, or why not (stand-ins, guide
+    forces, too few trials, unfinished runs)."""
     if reasons:
-        return "VERDICT: PIPELINE CHECK, not a result: " + "; ".join(reasons) + "."
+        return "VERDICT: NOT A FINAL RESULT: " + "; ".join(reasons) + "."
     return "VERDICT: " + (ok or "no pipeline-check markers (no stand-ins, no guide forces, the "
                           "paper's trial count).")
 

@@ -19,6 +19,7 @@ after `_gl_default()` (the demo imports this module first for the same reason).
 from __future__ import annotations
 
 import argparse
+import ctypes.util
 import os
 import pathlib
 import sys
@@ -32,9 +33,15 @@ from biped_switch.config import EVAL_TRACK_SEED
 
 
 def _gl_default() -> None:
+    """EGL on a GPU host, else OSMesa where libOSMesa is installed; without either MUJOCO_GL is
+    left unset (importing mujoco with MUJOCO_GL=osmesa but no libOSMesa fails, so a run that draws
+    nothing, e.g. `demo --no-video`, would fail too; drawing then fails, and says why)."""
     if "MUJOCO_GL" not in os.environ:
-        os.environ["MUJOCO_GL"] = "egl" if os.path.exists("/dev/nvidia0") else "osmesa"
-    if os.environ["MUJOCO_GL"] == "osmesa":
+        if os.path.exists("/dev/nvidia0"):
+            os.environ["MUJOCO_GL"] = "egl"
+        elif ctypes.util.find_library("OSMesa"):
+            os.environ["MUJOCO_GL"] = "osmesa"
+    if os.environ.get("MUJOCO_GL") == "osmesa":
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
 

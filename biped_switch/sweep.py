@@ -36,6 +36,7 @@ import functools
 import json
 import pathlib
 import sys
+import textwrap
 import time
 from typing import NamedTuple
 
@@ -343,7 +344,7 @@ def plot_switch_success(tables: dict, path: pathlib.Path, title: str = "",
         ax.set_ylabel(f"% success (moving mean of {smooth_bins} cm)")
         ax.set_title(f"switch to {target}")
         ax.legend(fontsize=7)
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(textwrap.fill(title, 70 * len(tables)), fontsize=9)  # one panel: 2 lines
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -666,6 +667,8 @@ def main(argv=None) -> int:
                          "points_per_s_steady": rate_or_none(run.steady_points, run.steady_s),
                          "device": str(jax.devices()[0]),
                          "backend": env_lib.resolve_backend(a.backend)}
+        if run.points_new == 0 and stored.get(target):  # nothing to make: keep its recorded speed
+            stats[target] = {**stored[target], **data_stats(data[target], run.path, run.wall_s_total)}
         print(json.dumps({"sweep": f"{name}/{target}", **stats[target]}), flush=True)
     for target in terrain.ARTIFACT_KINDS:  # the lookup table covers every target swept so far
         path = out / name / f"{target}.npz"

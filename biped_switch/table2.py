@@ -325,6 +325,45 @@ def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]
     return sorted(kept + list(rows), key=lambda r: order.get(r["method"], len(order)))
 
 
+def failures_by_context(tracks, progress_frac, fell, fail_kind, detect_range_m: float = 0.9
+                        ) -> dict:
+    """{kind: {previous kind or "start": [reached, fell on it]}} over trials on `tracks`.
+
+    Why a row fails, by where: an artifact is reached when the body came within `detect_range_m`
+    of its start; a trial that fell is charged to the last artifact it reached if the env blamed
+    that artifact's kind (`fail_kind`, env.blame_kind). Positions come from `progress_frac` along
+    start -> finish line (the start taken at x = 0: a few cm off)."""
+    out = {k: {} for k in terrain.ARTIFACT_KINDS}
+    for i, t in enumerate(tracks):
+        x = float(progress_frac[i]) * t.finish_x_m
+        arts = t.artifacts
+        reached = [k for k, (_, a0, _) in enumerate(arts) if a0 - detect_range_m <= x]
+        for k in reached:
+            kind, prev = arts[k][0], ("start" if k == 0 else arts[k - 1][0])
+            cell = out[kind].setdefault(prev, [0, 0])
+            cell[0] += 1
+            cell[1] += int(k == reached[-1] and fell[i] > 0.5
+                           and int(fail_kind[i]) == terrain.ARTIFACT_KINDS.index(kind))
+    return out
+
+
+def failures_markdown(by_method: dict) -> str:
+    """One table per artifact kind: % fell on it (fell / reached) by the artifact before it."""
+    lines = []
+    for kind in terrain.ARTIFACT_KINDS:
+        prevs = sorted({p for d in by_method.values() for p in d[kind]},
+                       key=lambda p: (p != "start", p))
+        lines += [f"**{kind}**, fell on it / reached, by the artifact before it", "",
+                  "| method | " + " | ".join(f"after {p}" for p in prevs) + " |",
+                  "|---|" + "---|" * len(prevs)]
+        for m, d in by_method.items():
+            cells = [(f"{f:,} / {n:,} ({100 * f / n:.1f}%)" if n else "-")
+                     for n, f in (d[kind].get(p, [0, 0]) for p in prevs)]
+            lines.append(f"| {m} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
 def table2_markdown(rows: list[dict]) -> str:
     lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail (CI) | "
              "% jump fail (CI) | % stair fail (CI) | paper (dist. / success / gap / jump / stair) |",

@@ -282,31 +282,45 @@ def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
                                        "mixed: curriculum unfinished (terrain d=0.6 guide=1.0)"]
 
 
-@pytest.mark.slow
-def test_demo_runs_end_to_end_on_the_pipeline_check(tmp_path, monkeypatch):
-    """`make demo` at a tiny size: table, Fig. 5 and summary written (about 6 min on 2 cores)."""
+def test_demo_runs_end_to_end_on_the_trained_suite(tmp_path, monkeypatch, capsys):
+    """`make demo` at a tiny size on the committed trained suite (models/policies, models/
+    estimators, experiments/results/lookup): a row per available method, the table, Fig. 5 and the
+    summary written, no stand-in or pipeline-check label. Without a stand-init policy it stops
+    first, naming the policy and the command that trains it. (About 25 s on 2 busy cores: the
+    mujoco backend compiles little; 2 trials of 1-artifact tracks, 4 s limit, no video.)"""
     from biped_switch import demo
-
-    # no committed policies either: the demo must fall back to the pipeline check
-    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "no_committed")
-
-    import shutil
-
     from biped_switch.model import MODELS_DIR
-    from policy_runs import fake_policy_run
 
-    # a pipeline check in today's checkpoint format: an untrained walk policy, and the committed
-    # estimators (their format did not change)
-    check = tmp_path / "pipeline_check"
-    fake_policy_run(check, "walk")
-    shutil.copytree(MODELS_DIR / "pipeline_check" / "estimators", check / "estimators")
+    repo = MODELS_DIR.parent
+    paths = ["--runs", str(tmp_path / "no_runs"),  # the committed runs only, not a live runs/
+             "--estimators", str(MODELS_DIR / "estimators"),
+             "--lookup", str(repo / "experiments" / "results" / "lookup")]
+    with monkeypatch.context() as mp:  # no committed policies: an error, nothing stands in
+        mp.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "no_committed")
+        assert demo.main(["--trials", "1", "--out", str(tmp_path / "none"), *paths]) == 1
+        err = capsys.readouterr().err
+        for p in ("walk", "jumps", "gaps", "stairs"):
+            assert (f"no trained stand-init {p} policy" in err
+                    and f"python -m biped_switch.train --policy {p} --init stand" in err), err
+        assert not (tmp_path / "none").exists()
     out = tmp_path / "demo"
-    assert demo.main(["--trials", "2", "--horizon-s", "2", "--no-video", "--out", str(out),
-                      "--runs", str(tmp_path / "no_runs"), "--pipeline-check", str(check)]) == 0
+    assert demo.main(["--trials", "2", "--n-artifacts", "1", "--horizon-s", "4", "--no-video",
+                      "--out", str(out), *paths]) == 0
     summary = json.loads((out / "demo_summary.json").read_text())
-    assert summary["stand_ins"] and summary["trials"] == 2 and summary["n_artifacts"] == 2
+    assert summary["trials"] == 2 and summary["n_artifacts"] == 1 and summary["guide_scale"] == 0.0
+    methods = summary["methods"]
+    # every method is run or skipped with its reason; the committed suite has what the switching
+    # methods need (all four stand-init policies, the estimators and the lookup table)
+    assert set(methods) | {s.split(":")[0] for s in summary["skipped"]} == set(table2.MULTI_METHODS)
+    assert {"random", "detection", "lookup", "com_over_feet", "estimator"} <= set(methods)
+    assert [r["method"] for r in summary["rows"]] == methods
+    assert not any(s.startswith("stand-in") for s in summary["policies"])
+    assert all(f"{n}_stand" in s for n, s in zip(("walk", "jumps", "gaps", "stairs"),
+                                                  summary["policies"]))
     md = (out / "table2_demo.md").read_text()
-    assert md.startswith("PIPELINE CHECK") and "| detection | 2 |" in md
+    assert "PIPELINE CHECK" not in md and "stand-in" not in md
+    for m in methods:
+        assert f"| {m} | 2 |" in md, m
     assert (out / "fig5_demo.png").stat().st_size > 10_000
 
 
@@ -409,3 +423,28 @@ def test_context_parts_fall_back_per_target_to_the_plain_sweeps(tmp_path):
     assert table2.switch_rule("lookup_context") == "lookup"
     assert table2.switch_rule("estimator_context") == "estimator"
     assert table2.switch_rule("estimator_no_overlap") == "estimator"
+
+
+def test_failures_by_context_by_hand():
+    from biped_switch import terrain
+
+    cfg = config.default_terrain_config(2)
+    a = terrain.sequence_track(1, ["jumps", "gaps"], 1.0, cfg)
+    b = terrain.sequence_track(2, ["gaps", "stairs"], 1.0, cfg)
+    gap_x0 = a.artifacts[1][1]
+    jumps_x0 = a.artifacts[0][1]
+    tracks = [a, b, a, a]
+    x = [gap_x0 + 0.1,  # falls just past the gap's start, after jumps
+         b.finish_x_m,  # finishes: reaches both, falls on none
+         jumps_x0 - 1.0,  # falls on the flat before jumps comes in range: reaches nothing
+         gap_x0 - 0.5]  # falls 0.5 m before the gap: gaps is in range, and the env blamed it
+    progress = np.array([xi / t.finish_x_m for xi, t in zip(x, tracks)])
+    fell = np.array([1.0, 0.0, 1.0, 1.0])
+    kinds = terrain.ARTIFACT_KINDS
+    fail_kind = np.array([kinds.index("gaps"), -1, -1, kinds.index("gaps")])
+    out = table2.failures_by_context(tracks, progress, fell, fail_kind)
+    assert out["gaps"] == {"jumps": [2, 2], "start": [1, 0]}
+    assert out["jumps"] == {"start": [2, 0]}
+    assert out["stairs"] == {"gaps": [1, 0]}
+    md = table2.failures_markdown({"m": out})
+    assert "| m | 0 / 1 (0.0%) | 2 / 2 (100.0%) |" in md  # "after start" first

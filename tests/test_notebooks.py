@@ -1,10 +1,8 @@
 """The result notebooks (experiments/notebooks/*.ipynb) run top to bottom on the committed results.
 
 Each notebook is executed in a fresh kernel of this interpreter with BIPED_RESULTS pointing at the
-committed results it is meant for (`COMMITTED`): the results of the trained policies
-(experiments/results/) where they exist, the pipeline-check set (experiments/results/pipeline_check/,
-real outputs of the CLIs with untrained stand-in policies) for the rest, and for the training
-curves BIPED_RUNS at the committed policy runs (models/policies/). The tests check that it drew its
+committed results of the trained stand-init policy suite (experiments/results/, `COMMITTED`), and
+for the training curves BIPED_RUNS at the committed policy runs (models/policies/). The tests check that it drew its
 figures, that its printed tables hold the numbers in the files and that it prints its verdict. A
 committed input that is missing fails the test; there is no synthetic fallback. A notebook pointed
 at an empty results root must fail with a message naming the command that makes its input.
@@ -33,7 +31,6 @@ from nbclient.exceptions import CellExecutionError  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 NB_DIR = REPO / "experiments" / "notebooks"
-PIPELINE_CHECK = REPO / "experiments" / "results" / "pipeline_check"
 KERNEL = "biped-switch-test"
 NOTEBOOKS = ("table1_single_policies", "table2_switching", "table3_retrain_cost",
              "fig4b_switch_success", "fig5_trial", "training_curves")
@@ -47,14 +44,13 @@ INPUTS = {  # the file each notebook cannot do without, and the command its erro
 }
 POLICY_RUNS = REPO / "models" / "policies"  # the committed training runs (train --commit)
 REAL = REPO / "experiments" / "results"  # the results of the trained policies
-# The committed results each notebook runs on: (results root, runs root for BIPED_RUNS or None),
-# and whether its verdict must read as a result (REAL roots) or as a pipeline check.
+# The committed results each notebook runs on: (results root, runs root for BIPED_RUNS or None).
 COMMITTED = {"table1_single_policies": (REAL, None),
-             "table2_switching": (PIPELINE_CHECK, None),
-             "table3_retrain_cost": (PIPELINE_CHECK, None),
+             "table2_switching": (REAL, None),
+             "table3_retrain_cost": (REAL, None),
              "fig4b_switch_success": (REAL, None),
-             "fig5_trial": (PIPELINE_CHECK, None),
-             "training_curves": (PIPELINE_CHECK, POLICY_RUNS)}
+             "fig5_trial": (REAL, None),
+             "training_curves": (REAL, POLICY_RUNS)}
 
 sys.path.insert(0, str(NB_DIR))
 import _common as C  # noqa: E402
@@ -249,10 +245,12 @@ def committed_root(name: str, tmp: pathlib.Path) -> tuple[pathlib.Path, pathlib.
     """(results root, runs root) of the committed results notebook `name` runs on; fails when its
     input is not there (these files are committed: nothing to skip, nothing to stand in for)."""
     root, runs = COMMITTED[name]
-    path = root / INPUTS[name][0]
-    assert path.exists(), f"committed input {path} of {name} is missing"
-    if runs is not None:
+    if runs is None:
+        path = root / INPUTS[name][0]
+        assert path.exists(), f"committed input {path} of {name} is missing"
+    else:  # the training curves: the committed runs (and the estimators under the results root)
         assert list(runs.glob("*/metrics.csv")), f"no committed training run under {runs}"
+        assert list(root.glob("estimators/*_history.csv")), f"no committed estimator under {root}"
     return root, runs
 
 
@@ -332,8 +330,8 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
     assert C.train_command(synthetic_runs, "gaps")[-2:] == ["--out", str(synthetic_runs)]
     monkeypatch.delenv("BIPED_RUNS")
     assert C.runs_root() == REPO / "runs" and C.train_command()[-1] == "runs"
-    assert C.run_roots(PIPELINE_CHECK) == [REPO / "runs", REPO / "models" / "pipeline_check"]
-    assert C.runs_root(PIPELINE_CHECK) == REPO / "models" / "pipeline_check"
+    assert C.run_roots(REAL) == [REPO / "runs", POLICY_RUNS]  # runs/, then the committed runs
+    assert C.runs_root(REAL) == REPO / "runs"
     # Table III: hours whose runs cannot be found are not taken for complete runs
     t3 = json.loads((synthetic / "table3" / "table3.json").read_text())
     runs3, checks = table3.table3_checks(t3, synthetic, synthetic_runs)
@@ -394,7 +392,7 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
     """The commands the notebooks name (and run when RECOMPUTE = True) are accepted by the CLIs and
     get to their work, each with its one expected outcome; the work itself is patched out, except
     retrain-cost, which only reads logs and runs for real (into a temporary folder) on the
-    committed pipeline-check root the Table III notebook reads."""
+    committed results root the Table III notebook reads."""
     from biped_switch import estimator, evaluate, sweep, train
 
     monkeypatch.chdir(REPO)  # the commands are typed from the repository root
@@ -427,9 +425,9 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
             assert got == want, (argv, got)
         err = capsys.readouterr().err
         assert err.count("no trained policy found for: jumps_stand") == 2
-        assert "python -m biped_switch.sweep --init stand --target jumps" in err
+        assert "python -m biped_switch.sweep --init stand --targets jumps" in err
     # retrain-cost: reads <runs> and <results> of the notebook's root, writes <results>/table3
-    root = PIPELINE_CHECK
+    root = REAL
     assert (root / "lookup").is_dir() and (root / "estimators").is_dir()
     argv = C.table3_command(root, None, "stand")
     assert argv[:3] == ["-m", "biped_switch.evaluate", "retrain-cost"]
@@ -442,12 +440,16 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
     ours = next(r for r in doc["rows"] if r["method"] == "ours")["parts"]
     assert ours["sweep jumps"] is not None and ours["estimator gaps"] is not None  # read <results>
     checks = table3.table3_checks(doc, root, C.runs_root(root))[1]
-    # its runs are models/pipeline_check: flagged wherever measured
-    assert checks["ours"] and all(checks[r["method"]] for r in doc["rows"]
-                                  if any(v is not None for v in r["parts"].values()))
+    # the trained suite's runs (runs/, else models/policies/): nothing from a pipeline check; a
+    # run short of its step goal or curriculum flags the hours measured from it
+    assert not any("pipeline" in n for notes in checks.values() for n in notes), checks
     e2e = next(r for r in doc["rows"] if r["method"] == "end_to_end")
-    assert e2e["hours"] is not None  # models/pipeline_check/mixed_stand: its 100k-step snapshot ...
-    assert any("pipeline" in n for n in checks["end_to_end"])  # ... never beside 34 h unflagged
+    assert e2e["hours"] is not None  # the committed end-to-end run (models/policies/mixed_stand) ...
+    mixed = runs_lib.find_policy("mixed", "stand", C.runs_root(root)).parent.parent
+    assert bool(checks["end_to_end"]) == bool(runs_lib.run_notes(mixed))  # ... flagged iff unfinished
+    for k in ("jumps", "gaps", "stairs"):  # ours: each unfinished new-policy run is named
+        d = runs_lib.find_policy(k, "stand", C.runs_root(root)).parent.parent
+        assert not runs_lib.run_notes(d) or any(d.name in n for n in checks["ours"]), (d, checks)
 
 
 @pytest.mark.parametrize("name", NOTEBOOKS)
@@ -456,12 +458,15 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
     text, images = run_notebook(name, data_root, kernel_env, monkeypatch, runs_dir)
     verdicts = [ln for ln in text.splitlines() if ln.startswith("VERDICT: ")]
     assert verdicts, text[-2000:]
-    # the results of the trained policies (REAL: the paper's trial counts, no stand-ins, no guides)
-    # read as results; the pipeline-check tree and unfinished training runs say that they are not
-    if data_root == REAL:
-        assert all(not v.startswith("VERDICT: PIPELINE CHECK") for v in verdicts), verdicts
-    else:
-        assert all(v.startswith("VERDICT: PIPELINE CHECK, not a result: ") for v in verdicts), verdicts
+    # the results of the trained policies carry no pipeline-check marker (stand-ins, a label, a
+    # pipeline_check tree) and read as results; only the hours and curves of the training runs
+    # themselves (Table III, training curves) may say "not a result", for runs still short of
+    # their step goal or curriculum (checked below)
+    assert not any(m in v for v in verdicts if v.startswith("VERDICT: NOT A FINAL RESULT")
+                   for m in ("stand-in", "labelled so", "is a pipeline check",
+                             "pipeline-check results root")), verdicts
+    if name not in ("table3_retrain_cost", "training_curves"):
+        assert all(not v.startswith("VERDICT: NOT A FINAL RESULT") for v in verdicts), verdicts
     if name == "table1_single_policies":
         doc = json.loads((data_root / "table1" / "table1.json").read_text())
         assert images == 1
@@ -480,9 +485,20 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
             assert f"{r['distance_pct']:.1f} (" in line and f"{r['success_pct']:.1f} (" in line
         assert "82.4 / 71.4 / 16.7 / 2.4 / 9.4" in text  # the paper's estimator row beside ours
     elif name == "table3_retrain_cost":
-        doc = json.loads((data_root / "table3" / "table3.json").read_text())
+        path = data_root / "table3" / "table3.json"
+        doc = json.loads(path.read_text())
         assert images >= 1
         assert "hours from" in text
+        # the verdict, and each method's "hours from" cell, follow from the runs as they are
+        expect = []
+        table3.table3_provenance(doc, path, data_root, C.runs_root(data_root),
+                                 print_fn=lambda *a: expect.append(" ".join(map(str, a))))
+        assert verdicts == [expect[-1]], (verdicts, expect[-1])
+        checks = table3.table3_checks(doc, data_root, C.runs_root(data_root))[1]
+        hdr, rows3 = table3.table3_rows(doc, checks)
+        for row in rows3:
+            line = next(ln for ln in text.splitlines() if ln.split()[:1] == [row[0]])
+            assert f" {row[hdr.index('hours from')]} " in line, line
         for r in doc["rows"]:
             assert r["method"] in text
             if r.get("hours") is not None:
@@ -521,10 +537,15 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
             steps = C.read_csv(d / "metrics.csv")["step"]
             line = next(ln for ln in text.splitlines() if ln.startswith(C.run_name(d) + " "))
             assert f"{int(np.nanmax(steps)):,}" in line, line
-        train_verdict = verdicts[0]  # the training runs' (the estimators' comes after)
-        for reason in runs_lib.training_checks(runs, C.run_name):  # e.g. the walk run's unfinished push stage
+        train_verdict, est_verdict = verdicts  # the training runs', then the estimators'
+        reasons = runs_lib.training_checks(runs, C.run_name)
+        assert train_verdict.startswith("VERDICT: NOT A FINAL RESULT: ") == bool(reasons)
+        for reason in reasons:  # e.g. a run short of its step goal
             assert reason in train_verdict
-        assert "models/policies/walk_stand: " in train_verdict
+        for d in runs:  # named in the verdict exactly when its run is not finished
+            assert (f"{C.run_name(d)}: " in train_verdict) == bool(runs_lib.run_notes(d)), d
+        # the committed estimators, trained on the real sweeps, read as results
+        assert not est_verdict.startswith("VERDICT: NOT A FINAL RESULT"), est_verdict
         for e, _, _ in ests:
             assert e in text
 

@@ -424,6 +424,10 @@ def test_main_keeps_the_stats_of_targets_swept_before(fake_sweep, tmp_path):
     g = sweeps["gaps"]
     assert (g["points"], g["points_new"], g["wall_s"], g["loop_s"]) == (60, 20, 21 + 11, 10)
     assert g["points_per_s"] == 2.0 and g["points_per_s_steady"] is None
+    # rerun when the points are all there: nothing made, the recorded speed and time stay
+    assert sweep.main(argv[:1] + ["50"] + argv[2:] + ["gaps"]) == 0
+    again = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]["gaps"]
+    assert again == g
 
 
 def test_main_keeps_the_table_of_a_target_whose_data_is_gone(fake_sweep, tmp_path):

@@ -12,8 +12,8 @@ laid out as the package's CLIs write it (table1/, table2/, table3/, lookup/, est
 training/). Policy training runs are read from the runs root (`runs_root`, `run_roots`):
 
     RUNS = $BIPED_RUNS, else <repo>/runs (where `python -m biped_switch.train`, `make train-all`
-           and `make reproduce` write; runs.find_policy looks there, then in models/policies/),
-           and for a pipeline-check results root models/pipeline_check (the runs it was made from)
+           and `make reproduce` write; runs.find_policy looks there, then in models/policies/);
+           the training curves are looked for in <repo>/runs and models/policies/ (`run_roots`)
 
 A missing input raises `MissingResult`, whose message names the command that makes it; nothing is
 skipped silently. Nothing here builds an environment, steps the simulator or compiles JAX code:
@@ -45,14 +45,13 @@ def _find_repo() -> pathlib.Path:
 REPO = _find_repo()
 NB_DIR = REPO / "experiments" / "notebooks"
 DEFAULT_RESULTS = REPO / "experiments" / "results"
-PIPELINE_CHECK = DEFAULT_RESULTS / "pipeline_check"
 DEFAULT_RUNS = REPO / "runs"  # where train, make train-all and make reproduce write their runs
-PIPELINE_MODELS = REPO / "models" / "pipeline_check"  # the pipeline check's runs (not trained)
+COMMITTED_RUNS = REPO / "models" / "policies"  # the committed training runs (train --commit)
 if str(REPO) not in sys.path:  # biped_switch importable even without `pip install -e .`
     sys.path.insert(0, str(REPO))
 
 from biped_switch import paper  # noqa: E402  (the paper's numbers)
-from biped_switch.provenance import is_pipeline_check, rel, repo_path  # noqa: E402
+from biped_switch.provenance import rel, repo_path  # noqa: E402
 from biped_switch.runs import curve_series  # noqa: E402
 from biped_switch.stats import wilson_ci  # noqa: E402
 
@@ -76,24 +75,18 @@ def results_root() -> pathlib.Path:
 
 def runs_root(results=None) -> pathlib.Path:
     """The runs folder a results root was (or is to be) made from: $BIPED_RUNS (relative paths
-    from the repository root); else models/pipeline_check for a pipeline-check `results`; else
-    <repo>/runs, where `train` writes (find_policy then also looks in models/policies/)."""
+    from the repository root), else <repo>/runs, where `train` writes (find_policy then also looks
+    in models/policies/). `results` is accepted for the callers' symmetry; it does not change the
+    answer."""
     env = _env_path("BIPED_RUNS")
-    if env is not None:
-        return env
-    if results is not None and is_pipeline_check(results):
-        return PIPELINE_MODELS
-    return DEFAULT_RUNS
+    return env if env is not None else DEFAULT_RUNS
 
 
 def run_roots(results=None) -> list[pathlib.Path]:
-    """Every folder searched for training runs: [$BIPED_RUNS] when set, else <repo>/runs and, for
-    a pipeline-check `results`, models/pipeline_check."""
+    """Every folder searched for training runs: [$BIPED_RUNS] when set, else <repo>/runs and the
+    committed runs in models/policies/ (where runs.find_policy looks after runs/)."""
     env = _env_path("BIPED_RUNS")
-    if env is not None:
-        return [env]
-    return [DEFAULT_RUNS] + ([PIPELINE_MODELS] if results is not None and is_pipeline_check(results)
-                             else [])
+    return [env] if env is not None else [DEFAULT_RUNS, COMMITTED_RUNS]
 
 
 class MissingResult(FileNotFoundError):
@@ -113,20 +106,7 @@ def require(path, argv: Sequence[str], what: str) -> pathlib.Path:
     msg = (f"{what} not found: {path} is missing.\nMake it with (from {REPO}):\n    "
            f"{command_str(argv)}\nor point BIPED_RESULTS at a results root that has it "
            f"(now: {results_root()}).")
-    root = results_root().resolve()
-    alt = (PIPELINE_CHECK / path.resolve().relative_to(root)) if _inside(path, root) else None
-    if alt is not None and alt.is_file() and alt.resolve() != path.resolve():
-        msg += (f"\nA pipeline-check copy exists at {rel(alt)} "
-                f"(BIPED_RESULTS={rel(PIPELINE_CHECK)}): a pipeline check, not a result.")
     raise MissingResult(msg)
-
-
-def _inside(path: pathlib.Path, root: pathlib.Path) -> bool:
-    try:
-        path.resolve().relative_to(root.resolve())
-        return True
-    except ValueError:
-        return False
 
 
 def load_json(path, argv: Sequence[str], what: str) -> dict:
