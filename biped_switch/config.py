@@ -264,6 +264,7 @@ def default_switching_config() -> config_dict.ConfigDict:
     """When-to-switch rules (paper Sec. IV-B); all values may be traced."""
     return config_dict.create(
         estimator_threshold=0.85,  # switch once E_i(s) >= this
+        estimator_persist_steps=1,  # ... on this many control steps in a row (1: the paper)
         force_switch_m=0.01,  # CoM-over-feet and estimator: force the switch this close
         feet_tol_m=0.10,  # CoM over feet: feet within this fore-aft distance of each other [m]
         support_margin_m=0.01,  # CoM over feet: CoM within this of the support polygon [m]

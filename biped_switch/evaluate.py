@@ -293,7 +293,8 @@ def _main_multi(a, p) -> int:
     save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
     lock.close()
     # Fig. 5 of each estimator method run now (the paper's, and ours on the context sweep)
-    for method, suffix in (("estimator", ""), ("estimator_context", "_context")):
+    for method, suffix in (("estimator", ""), ("estimator_context", "_context"),
+                           ("estimator_context_persist", "_context_persist")):
         if a.fig5_trial < 0 or method not in a.methods or "stand" not in setups:
             continue
         s = setups["stand"]

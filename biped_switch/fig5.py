@@ -24,8 +24,10 @@ def trace_trial(setup, method: str, trial: int, seed: int) -> dict:
     given track uses no randomness, so this is the trial of the table; a random-init trace draws
     its own start joints (key seed + trial), and the `random` rule its own distances."""
     var = getattr(setup, "variants", {}).get(method, {})  # a context method's estimators / lookup
-    rules = sw.make_rules(method.removesuffix("_context"),
-                          lookup_m=var.get("lookup_m", setup.lookup_m))
+    rules = sw.make_rules("estimator" if method.startswith("estimator") else
+                          method.removesuffix("_context"),
+                          lookup_m=var.get("lookup_m", setup.lookup_m),
+                          persist_steps=var.get("persist_steps"))
     f = jax.jit(functools.partial(sw.trace_rollout, setup.env, setup.suite.apply,
                                   est_apply=setup.est_apply, horizon=setup.horizon,
                                   guide_scale=setup.guide_scale))

@@ -10,7 +10,8 @@ target, and the rule decides at each control step whether the active policy hand
   lookup         at the lookup table's best distance for (active policy -> target)
   com_over_feet  when the whole-body CoM is over the support polygon of the touching soles and the
                  feet are within `feet_tol_m` of each other fore-aft
-  estimator      when the target's switch estimator gives E(s) >= `estimator_threshold`
+  estimator      when the target's switch estimator gives E(s) >= `estimator_threshold`, on
+                 `persist_steps` control steps in a row (1, the paper's rule: the first such step)
 Every method is forced to switch once the artifact is `force_switch_m` (1 cm) away, so a rule
 that never fires (and a distance stepped over between control steps) still switches in time.
 While nothing is detected the active policy keeps control; an artifact policy also walks the
@@ -49,9 +50,11 @@ class Rules(NamedTuple):
     feet_tol_m: jax.Array
     margin_m: jax.Array  # CoM may be this far outside the support polygon [m]
     switch_max_m: jax.Array  # random method: U(0, switch_max_m)
+    persist_steps: jax.Array  # int32: estimator: E >= threshold this many control steps in a row
 
 
-def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9) -> Rules:
+def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9,
+               persist_steps: int | None = None) -> Rules:
     if method not in METHOD_INDEX:
         raise ValueError(f"unknown switching method {method!r}; expected one of {METHODS}")
     cfg = cfg or default_switching_config()
@@ -70,10 +73,13 @@ def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9) 
             warnings.warn(f"lookup table has no data for {len(missing)} pair(s) (active, target) "
                           f"{[tuple(int(v) for v in m) for m in missing]}: those switch only at the "
                           f"forced distance ({(cfg.force_switch_m):g} m)", stacklevel=2)
+    persist = int(cfg.estimator_persist_steps if persist_steps is None else persist_steps)
+    if persist < 1:
+        raise ValueError(f"persist_steps must be >= 1 (1: the paper's rule), got {persist}")
     f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
     return Rules(jnp.asarray(METHOD_INDEX[method], jnp.int32), jnp.asarray(np.nan_to_num(lookup_m)),
                  f32(cfg.estimator_threshold), f32(cfg.force_switch_m), f32(cfg.feet_tol_m),
-                 f32(cfg.support_margin_m), f32(switch_max_m))
+                 f32(cfg.support_margin_m), f32(switch_max_m), jnp.asarray(persist, jnp.int32))
 
 
 class SwitchState(NamedTuple):
@@ -83,6 +89,7 @@ class SwitchState(NamedTuple):
     art_index: jax.Array  # int32 index of the artifact last detected (-1: none yet)
     random_m: jax.Array  # random method: this artifact's switch distance [m]
     n_switches: jax.Array  # int32
+    est_run: jax.Array  # int32: control steps in a row the detected target's E >= threshold
 
 
 def smoothed_success_pct(rate: np.ndarray, count: np.ndarray, bins: int) -> np.ndarray:
@@ -97,7 +104,8 @@ def smoothed_success_pct(rate: np.ndarray, count: np.ndarray, bins: int) -> np.n
 
 def init_state(n_envs: int) -> SwitchState:
     return SwitchState(jnp.zeros(n_envs, jnp.int32), jnp.full(n_envs, -1, jnp.int32),
-                       jnp.zeros(n_envs, jnp.float32), jnp.zeros(n_envs, jnp.int32))
+                       jnp.zeros(n_envs, jnp.float32), jnp.zeros(n_envs, jnp.int32),
+                       jnp.zeros(n_envs, jnp.int32))
 
 
 # ----------------------------------------------------------------------- CoM over feet
@@ -159,17 +167,21 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
     target = jnp.where(seen, kind + 1, ss.active)
     pending = target != ss.active
     lookup_m = rules.lookup_m[ss.active, kind]
+    # a run of confident estimates, counted afresh for each artifact
+    est_run = jnp.where(seen & (est_probs[kind] >= rules.threshold),
+                        jnp.where(new_art, 0, ss.est_run) + 1, 0).astype(jnp.int32)
     fire = jnp.stack([
         det_dist_m <= random_m,
         jnp.asarray(True),
         det_dist_m <= lookup_m,
         com_ok,
-        est_probs[kind] >= rules.threshold,
+        est_run >= rules.persist_steps,
     ])[rules.method]
     switch = pending & (fire | (det_dist_m <= rules.force_m))
     new = SwitchState(active=jnp.where(switch, target, ss.active).astype(jnp.int32),
                       art_index=jnp.where(seen, det_index, ss.art_index).astype(jnp.int32),
-                      random_m=random_m, n_switches=ss.n_switches + switch.astype(jnp.int32))
+                      random_m=random_m, n_switches=ss.n_switches + switch.astype(jnp.int32),
+                      est_run=est_run)
     return new, switch
 
 

@@ -41,13 +41,18 @@ SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
 BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain (issue 5)
 # Ours, beyond the paper: lookup table and estimators from the context sweeps (`sweep --context`),
 # whose switches come after the source policy's own artifact, as on these tracks.
-CONTEXT_METHODS = ("lookup_context", "estimator_context")
+# `estimator_context_persist` also asks for the estimate to hold for PERSIST_STEPS control steps
+# in a row (as long as a sweep sample's window) instead of the paper's first confident step.
+CONTEXT_METHODS = ("lookup_context", "estimator_context", "estimator_context_persist")
 MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS
+PERSIST_STEPS = sweep.N_WINDOW
 
 
 def switch_rule(method: str) -> str:
     """The switching.METHODS rule a Table II switching method applies."""
-    return "estimator" if method == "estimator_no_overlap" else method.removesuffix("_context")
+    if method.startswith("estimator"):
+        return "estimator"
+    return method.removesuffix("_context")
 
 
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
@@ -65,7 +70,7 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
               and runs_lib.find_policy(first, init, runs) is None):
             skipped.append(f"{m}: no {init}-init walk policy under {runs}/ or models/policies/")
             continue
-        if m == "estimator_context":
+        if m.startswith("estimator_context"):
             if est_lib.context_estimator_paths(init, est_dir) is None:
                 skipped.append(f"{m}: no {init}_context estimator in {est_dir} (python -m "
                                f"biped_switch.estimator --init {init} --context), or a target has "
@@ -157,7 +162,8 @@ class MultiSetup:
         if need_lookup:
             self.parts["lookup"] = [f"{k}: {pathlib.Path(lookup_dir) / f'lookup_{init}.json'}"
                                     for k in terrain.ARTIFACT_KINDS]
-        if "estimator_context" in need_context:
+        est_ctx = [m for m in need_context if m.startswith("estimator_context")]
+        if est_ctx:
             paths = est_lib.context_estimator_paths(init, est_dir)
             if paths is None:
                 raise FileNotFoundError(f"no {init}_context estimators in {est_dir}")
@@ -165,9 +171,11 @@ class MultiSetup:
             self.est_apply = est_lib.predict
             if self.est_params is None:  # a compiled rollout needs some set for the other methods
                 self.est_params = params
-            self.variants["estimator_context"] = {"est_params": params}
-            self.parts["estimator_context"] = [f"{k}: {p}" for k, p in
-                                               zip(terrain.ARTIFACT_KINDS, paths)]
+            for m in est_ctx:
+                persist = PERSIST_STEPS if m.endswith("_persist") else 1
+                self.variants[m] = {"est_params": params, "persist_steps": persist}
+                self.parts[m] = ([f"{k}: {p}" for k, p in zip(terrain.ARTIFACT_KINDS, paths)]
+                                 + [f"estimate >= threshold on {persist} control step(s) in a row"])
         if "lookup_context" in need_context:
             m, used = sweep.load_context_lookup(init, lookup_dir)
             self.variants["lookup_context"] = {"lookup_m": m}
@@ -187,7 +195,8 @@ class MultiSetup:
     def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
         """Table II method `method` (a switching.METHODS rule, or a context variant)."""
         var = self.variants.get(method, {})
-        rules = sw.make_rules(switch_rule(method), lookup_m=var.get("lookup_m", self.lookup_m))
+        rules = sw.make_rules(switch_rule(method), lookup_m=var.get("lookup_m", self.lookup_m),
+                              persist_steps=var.get("persist_steps"))
         est_params = var.get("est_params", self.est_params)
         return _run_batches(lambda rng, ids: self.run(self.suite.params, est_params, rules,
                                                       rng, ids), trials, self.batch, seed, print_fn,

@@ -271,7 +271,7 @@ def test_cli_names_the_sweep_command_for_missing_data(tmp_path, capsys):
                    "--out", str(tmp_path / "m"), "--results", str(tmp_path / "r"), "--epochs", "1"])
     assert rc != 0
     err = capsys.readouterr().err
-    assert "python -m biped_switch.sweep --init random --target stairs" in err
+    assert "python -m biped_switch.sweep --init random --targets stairs" in err
     assert not (tmp_path / "m").exists()
 
 

@@ -211,7 +211,7 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end",
-                        "lookup_context", "estimator_context"}
+                        "lookup_context", "estimator_context", "estimator_context_persist"}
     assert "make train-dqn" in why["dqn"] and "--policy mixed" in why["end_to_end"]
     assert "random-init walk" in why["estimator_no_overlap"]
     # once the parts exist, every method is available
@@ -227,11 +227,11 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     assert "lookup" not in ok and skipped[0] == (
         f"lookup: the lookup table in {lookup} has no gaps, stairs (python -m biped_switch.sweep "
         "--targets gaps stairs)")
-    assert [s.split(":")[0] for s in skipped[1:]] == ["lookup_context", "estimator_context"]
+    assert [s.split(":")[0] for s in skipped[1:]] == list(table2.CONTEXT_METHODS)
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.SWITCH_METHODS + table2.BASELINES)
-    assert [s.split(":")[0] for s in skipped] == ["lookup_context", "estimator_context"]
+    assert [s.split(":")[0] for s in skipped] == list(table2.CONTEXT_METHODS)
     # a context sweep of one target: the other targets keep the plain sweep's parts
     (est / "stand_context_gaps").mkdir()
     (lookup / "lookup_stand_context.json").write_text('{"tables": {"gaps": {}}}')
@@ -422,6 +422,7 @@ def test_context_parts_fall_back_per_target_to_the_plain_sweeps(tmp_path):
                     f"stairs: {look / 'lookup_stand.json'}"]
     assert table2.switch_rule("lookup_context") == "lookup"
     assert table2.switch_rule("estimator_context") == "estimator"
+    assert table2.switch_rule("estimator_context_persist") == "estimator"
     assert table2.switch_rule("estimator_no_overlap") == "estimator"
 
 

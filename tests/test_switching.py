@@ -68,17 +68,21 @@ def test_com_over_feet_needs_feet_together():
 
 
 # ----------------------------------------------------------------------- decisions on traces
-def _run(method, dists, kinds, com_ok=None, est=None, lookup=None, active0=0, u01=0.5):
-    """Feeds a synthetic approach (detections per step) through `decide`; returns switch steps."""
-    rules = sw.make_rules(method, lookup_m=lookup)
-    ss = sw.SwitchState(jnp.int32(active0), jnp.int32(-1), jnp.float32(0), jnp.int32(0))
+def _run(method, dists, kinds, com_ok=None, est=None, lookup=None, active0=0, u01=0.5,
+         persist=None, index=None):
+    """Feeds a synthetic approach (detections per step) through `decide`; returns switch steps.
+    `index` (per step) names the detected artifact (default 0 while one is seen)."""
+    rules = sw.make_rules(method, lookup_m=lookup, persist_steps=persist)
+    ss = sw.SwitchState(jnp.int32(active0), jnp.int32(-1), jnp.float32(0), jnp.int32(0),
+                        jnp.int32(0))
     n = len(dists)
     com_ok = np.zeros(n, bool) if com_ok is None else com_ok
     est = np.zeros((n, 3)) if est is None else est
     out, actives = [], []
     f = jax.jit(sw.decide)
     for t in range(n):
-        ss, s = f(ss, jnp.int32(kinds[t]), jnp.int32(0 if kinds[t] >= 0 else -1),
+        idx = (0 if kinds[t] >= 0 else -1) if index is None else index[t]
+        ss, s = f(ss, jnp.int32(kinds[t]), jnp.int32(idx),
                   jnp.float32(dists[t]), jnp.bool_(com_ok[t]), jnp.asarray(est[t], jnp.float32),
                   jnp.float32(u01), rules)
         if s:
@@ -125,6 +129,34 @@ def test_estimator_threshold_and_force_switch():
     assert len(steps) == 1 and DISTS[steps[0]] <= 0.01 < DISTS[steps[0] - 1]
 
 
+def test_estimator_persistence_needs_a_run_of_confident_steps():
+    est = np.zeros((len(DISTS), 3))
+    a = FIRST_SEEN + 2
+    est[[a, a + 1, a + 3, a + 4, a + 5, a + 6], 1] = 0.9  # runs of 2, then 4 steps
+    est[:, 0] = 0.99  # other estimators are ignored
+    assert _run("estimator", DISTS, KINDS, est=est)[0] == [a]  # the paper's rule: the first
+    assert _run("estimator", DISTS, KINDS, est=est, persist=1)[0] == [a]
+    assert _run("estimator", DISTS, KINDS, est=est, persist=2)[0] == [a + 1]
+    assert _run("estimator", DISTS, KINDS, est=est, persist=3)[0] == [a + 5]  # the run of 2 broke
+    steps = _run("estimator", DISTS, KINDS, est=est, persist=5)[0]  # no run of 5: forced at 1 cm
+    assert len(steps) == 1 and DISTS[steps[0]] <= 0.01 < DISTS[steps[0] - 1]
+    # confident steps before detection do not count; nor do those of the previous artifact
+    pre = np.zeros((len(DISTS), 3))
+    pre[FIRST_SEEN - 3: FIRST_SEEN + 1, 1] = 0.9
+    steps = _run("estimator", DISTS, KINDS, est=pre, persist=2)[0]
+    assert len(steps) == 1 and DISTS[steps[0]] <= 0.01
+    index = np.where(np.arange(len(DISTS)) < FIRST_SEEN + 1, 0, 1)  # artifact 1 from then on
+    kinds = np.where(np.arange(len(DISTS)) < FIRST_SEEN, -1, 1)
+    est2 = np.zeros((len(DISTS), 3))
+    est2[FIRST_SEEN: FIRST_SEEN + 3, 1] = 0.9
+    steps, _, _ = _run("estimator", DISTS, kinds, est=est2, persist=3, active0=2, index=index)
+    assert steps == []  # already on the gaps policy: nothing to switch
+    steps, _, _ = _run("estimator", DISTS, kinds, est=est2, persist=3, index=index)
+    assert DISTS[steps[0]] <= 0.01  # the run of 3 straddles the new artifact: it restarts
+    with pytest.raises(ValueError, match="persist_steps"):
+        sw.make_rules("estimator", persist_steps=0)
+
+
 def test_com_over_feet_rule_and_force_switch():
     ok = np.zeros(len(DISTS), bool)
     ok[3] = True  # before detection: ignored
@@ -142,7 +174,7 @@ def test_no_switch_when_already_on_target_policy():
 
 def test_new_artifact_gets_new_random_distance_and_switches_again():
     rules = sw.make_rules("random")
-    ss = sw.SwitchState(jnp.int32(2), jnp.int32(0), jnp.float32(0.4), jnp.int32(1))
+    ss = sw.SwitchState(jnp.int32(2), jnp.int32(0), jnp.float32(0.4), jnp.int32(1), jnp.int32(0))
     # next artifact (index 1, stairs) comes into view at 0.9 m with u = 0.1 -> switch at 0.09 m
     ss, s = sw.decide(ss, jnp.int32(2), jnp.int32(1), jnp.float32(0.9), False, jnp.zeros(3), 0.1, rules)
     assert not s and float(ss.random_m) == pytest.approx(0.09) and int(ss.art_index) == 1

@@ -60,7 +60,8 @@ METHOD_LABELS = {"random": "Random", "detection": "On detection", "lookup": "Loo
                  "estimator_no_overlap": "Ours no overlap", "dqn": "*DQN",
                  "end_to_end": "*End-to-end", "ours": "Ours",
                  "lookup_context": "Lookup table (context sweep)",
-                 "estimator_context": "Ours, estimator (context sweep)"}
+                 "estimator_context": "Ours, estimator (context sweep)",
+                 "estimator_context_persist": "Ours, estimator (context sweep, 5-step run)"}
 
 
 def _env_path(name: str) -> pathlib.Path | None:
