@@ -73,11 +73,6 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     methods, skipped = table2.available_methods(table2.MULTI_METHODS, a.runs, a.estimators,
                                                 a.lookup, a.dqn)
-    no_random = _untrained(a.runs, "random")
-    if "estimator_no_overlap" in methods and no_random:  # its suite is the random-init one
-        methods.remove("estimator_no_overlap")
-        skipped.append(f"estimator_no_overlap: no random-init {', '.join(no_random)} policy "
-                       f"(python -m biped_switch.train --policy P --init random)")
     print(f"demo: {len(methods)} methods x {a.trials} mixed {a.n_artifacts}-artifact tracks "
           f"({a.horizon_s:.0f} s limit), then Fig. 5 and a GIF of one trial. Finishes in under 10 "
           f"minutes on 2 CPU cores (about 40% of it compiling the rollouts), about a minute on a GPU.",
@@ -145,9 +140,9 @@ def _in_training(runs) -> list[str]:
     return out
 
 
-def _untrained(runs, init: str = "stand") -> list:
-    """Behaviour policies of `init` with no checkpoint under `runs`/ or models/policies/."""
-    return [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, init, pathlib.Path(runs)) is None]
+def _untrained(runs) -> list:
+    """Stand-init behaviour policies with no checkpoint under `runs`/ or models/policies/."""
+    return [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, "stand", pathlib.Path(runs)) is None]
 
 
 def _video(rec: dict, setup, path: pathlib.Path) -> str | None:

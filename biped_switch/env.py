@@ -525,9 +525,10 @@ def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: floa
 
 
 def make_env(kind: str = "walk", init: str = "stand", curriculum_cfg=None, terrain_cfg=None,
-             n_artifacts: int | None = None, **overrides) -> BipedEnv:
+             n_artifacts: int | None = None, tracks=None, **overrides) -> BipedEnv:
     """The one env factory: a BipedEnv on `kind` tracks with env-config overrides (e.g.
-    n_tracks=8, difficulty=0.5); `n_artifacts` per track (default: the terrain config's, 7)."""
+    n_tracks=8, difficulty=0.5); `n_artifacts` per track (default: the terrain config's, 7);
+    `tracks` (terrain.Track list) instead of the seeded ones of `kind`."""
     if n_artifacts is not None:
         if terrain_cfg is not None:
             raise ValueError("give n_artifacts or terrain_cfg, not both")
@@ -538,5 +539,5 @@ def make_env(kind: str = "walk", init: str = "stand", curriculum_cfg=None, terra
         if k not in cfg:
             raise KeyError(f"unknown env config key {k!r}")
         cfg[k] = v
-    return BipedEnv(cfg, terrain_cfg=terrain_cfg, curriculum_cfg=curriculum_cfg)
+    return BipedEnv(cfg, terrain_cfg=terrain_cfg, curriculum_cfg=curriculum_cfg, tracks=tracks)
 

@@ -352,6 +352,12 @@ def load_estimator(path) -> tuple[dict, dict]:
     return jax.tree.map(np.asarray, params), json.loads((path / "meta.json").read_text())
 
 
+def sweep_name(init: str, context: bool = False) -> str:
+    """The folder and file stem of a sweep's data, and of the estimators and lookup made from it:
+    `<init>`, or `<init>_context` for a context sweep (`sweep --context`)."""
+    return f"{init}_context" if context else init
+
+
 def load_estimator_set(init: str, model_dir="models/estimators", targets: Sequence[str] = TARGETS
                        ) -> tuple[dict, list[dict]]:
     """(params stacked along a leading axis of len(targets), metas) of `<model_dir>/<init>_<target>`."""
@@ -378,7 +384,7 @@ def context_estimator_paths(init: str, model_dir="models/estimators",
     plain `<init>_<t>`: a context sweep may cover only the targets whose switches fail in context.
     None when no context estimator exists, or a target has neither."""
     d = pathlib.Path(model_dir)
-    ctx = [d / f"{init}_context_{t}" for t in targets]
+    ctx = [d / f"{sweep_name(init, True)}_{t}" for t in targets]
     if not any(p.exists() for p in ctx):
         return None
     paths = [c if c.exists() else d / f"{init}_{t}" for c, t in zip(ctx, targets)]
@@ -475,7 +481,7 @@ def main(argv=None) -> int:
                    help="train on the context sweep (`sweep --context`: DATA/<init>_context/); "
                         "checkpoints and results are named <init>_context_<target>")
     a = p.parse_args(argv)
-    name = f"{a.init}_context" if a.context else a.init
+    name = sweep_name(a.init, a.context)
 
     cfg = default_estimator_config()
     for k in ("epochs", "batch_size", "seed"):

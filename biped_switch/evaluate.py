@@ -292,12 +292,12 @@ def _main_multi(a, p) -> int:
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
     save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
     lock.close()
-    # Fig. 5 of each estimator method run now (the paper's, and ours on the context sweep)
-    for method, suffix in (("estimator", ""), ("estimator_context", "_context"),
-                           ("estimator_context_persist", "_context_persist")):
-        if a.fig5_trial < 0 or method not in a.methods or "stand" not in setups:
+    # Fig. 5 of each stand-suite estimator method run now: fig5_trial<i>[<suffix>.png]
+    for method in a.methods:
+        if a.fig5_trial < 0 or not method.startswith("estimator") or "stand" not in setups or \
+                method == "estimator_no_overlap":
             continue
-        s = setups["stand"]
+        suffix, s = method.removeprefix("estimator"), setups["stand"]
         rec = trace_trial(s, method, a.fig5_trial % a.trials, a.seed)
         track = trial_track(s, a.fig5_trial % a.trials)
         path = out / f"fig5_trial{a.fig5_trial}{suffix}.png"

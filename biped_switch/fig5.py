@@ -23,16 +23,12 @@ def trace_trial(setup, method: str, trial: int, seed: int) -> dict:
     """Per-step record of trial `trial` of a table2.MultiSetup (Fig. 5). A stand-init reset on a
     given track uses no randomness, so this is the trial of the table; a random-init trace draws
     its own start joints (key seed + trial), and the `random` rule its own distances."""
-    var = getattr(setup, "variants", {}).get(method, {})  # a context method's estimators / lookup
-    rules = sw.make_rules("estimator" if method.startswith("estimator") else
-                          method.removesuffix("_context"),
-                          lookup_m=var.get("lookup_m", setup.lookup_m),
-                          persist_steps=var.get("persist_steps"))
+    rules, est_params = setup.rules_for(method)
     f = jax.jit(functools.partial(sw.trace_rollout, setup.env, setup.suite.apply,
                                   est_apply=setup.est_apply, horizon=setup.horizon,
                                   guide_scale=setup.guide_scale))
     rec = jax.device_get(f(suite_params=setup.suite.params,
-                           est_params=var.get("est_params", setup.est_params),
+                           est_params=est_params,
                            rules=rules, rng=jax.random.PRNGKey(seed + trial), track_id=trial))
     return {k: np.asarray(v) for k, v in rec.items()}
 

@@ -47,9 +47,8 @@ import numpy as np
 from biped_switch import env as env_lib
 from biped_switch import policies as pol
 from biped_switch import terrain
-from biped_switch.config import (SWEEP_TRACK_SEED, default_env_config, default_sweep_config,
-                                 default_terrain_config)
-from biped_switch.estimator import HM_SIZE, load_data
+from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_terrain_config
+from biped_switch.estimator import HM_SIZE, load_data, sweep_name
 from biped_switch.rollout import episode_keys, over_devices, reset_by_track, run_episodes
 from biped_switch.switching import smoothed_success_pct
 
@@ -247,20 +246,13 @@ def context_plan(target: str, n_tracks: int) -> tuple[list[list[str]], np.ndarra
     return kinds, np.asarray(src, np.int32), np.asarray(tidx, np.int32)
 
 
-def make_context_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
-    """Two-artifact tracks SWEEP_TRACK_SEED + i laid out by `context_plan`."""
-    kinds, _, _ = context_plan(target, n_tracks)
+def make_context_env(kinds, init: str, difficulty: float = 1.0, **overrides):
+    """Two-artifact tracks SWEEP_TRACK_SEED + i of the kinds `kinds[i]` (`context_plan`'s)."""
     tcfg = default_terrain_config(2)
     tracks = [terrain.sequence_track(SWEEP_TRACK_SEED + i, k, 1.0, tcfg)
               for i, k in enumerate(kinds)]
-    cfg = default_env_config()
-    cfg.kind, cfg.init, cfg.n_tracks, cfg.seed, cfg.difficulty = (
-        "mixed", init, n_tracks, SWEEP_TRACK_SEED, difficulty)
-    for k, v in overrides.items():
-        if k not in cfg:
-            raise KeyError(f"unknown env config key {k!r}")
-        cfg[k] = v
-    return env_lib.BipedEnv(cfg, tracks=tracks, terrain_cfg=tcfg)
+    return env_lib.make_env("mixed", init, terrain_cfg=tcfg, tracks=tracks, n_tracks=len(tracks),
+                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
 
 
 def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_index=None):
@@ -406,11 +398,6 @@ class SweepRun(NamedTuple):
     wall_s_total: float  # the sweep's wall time summed over the sessions that made points
 
 
-def sweep_name(init: str, context: bool = False) -> str:
-    """The folder and file stem of a sweep: `<init>` or `<init>_context`."""
-    return f"{init}_context" if context else init
-
-
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
               n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
               print_fn=print, backend: str = "auto", context: bool = False) -> SweepRun:
@@ -429,8 +416,8 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
     part_dir.mkdir(parents=True, exist_ok=True)
     overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in)
     if context:
-        _, track_src, track_tidx = context_plan(target, n_tracks)
-        env = make_context_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
+        kinds, track_src, track_tidx = context_plan(target, n_tracks)
+        env = make_context_env(kinds, init, cfg.difficulty, backend=backend, **overrides)
     else:
         track_src = track_tidx = None
         env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
@@ -563,11 +550,12 @@ def load_context_lookup(init: str, results: str | pathlib.Path = "experiments/re
     if lookup_missing(name, results) is None:
         raise FileNotFoundError(f"{results / f'lookup_{name}.json'} missing: run "
                                 f"`python -m biped_switch.sweep --init {init} --context`")
-    m, used = load_lookup(name, results), []
-    missing = lookup_missing(name, results)
+    m, missing = load_lookup(name, results), lookup_missing(name, results)
+    plain = load_lookup(init, results) if missing else None
+    used = []
     for i, k in enumerate(terrain.ARTIFACT_KINDS):
         if k in missing:
-            m[:, i] = load_lookup(init, results)[:, i]
+            m[:, i] = plain[:, i]
         used.append(f"{k}: {results / f'lookup_{init if k in missing else name}.json'}")
     return m, used
 

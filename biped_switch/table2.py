@@ -32,7 +32,7 @@ from biped_switch import runs as runs_lib
 from biped_switch import sweep
 from biped_switch import switching as sw
 from biped_switch import terrain
-from biped_switch.config import MULTI_TRACK_SEED, default_terrain_config
+from biped_switch.config import MULTI_TRACK_SEED, default_env_config, default_terrain_config
 from biped_switch.rollout import over_devices
 from biped_switch.stats import dist_success_cells, episode_table, pct_ci, pct_ci_cell
 
@@ -66,10 +66,16 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
             if runs_lib.find_policy("mixed", "stand", runs) is None:
                 skipped.append(f"{m}: no end-to-end policy (python -m biped_switch.train --policy mixed)")
                 continue
-        elif (runs_lib.find_policy("walk", init, runs) is None
-              and runs_lib.find_policy(first, init, runs) is None):
-            skipped.append(f"{m}: no {init}-init walk policy under {runs}/ or models/policies/")
-            continue
+        else:  # the suite: all four policies, or with a stand-in, walk or the stand-in
+            missing = [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, init, runs) is None]
+            if stand_in is not None and (runs_lib.find_policy("walk", init, runs) is not None
+                                         or runs_lib.find_policy(first, init, runs) is not None):
+                missing = []
+            if missing:
+                skipped.append(f"{m}: no {init}-init {', '.join(missing)} policy under {runs}/ or "
+                               f"models/policies/ (python -m biped_switch.train --policy P "
+                               f"--init {init})")
+                continue
         if m.startswith("estimator_context"):
             if est_lib.context_estimator_paths(init, est_dir) is None:
                 skipped.append(f"{m}: no {init}_context estimator in {est_dir} (python -m "
@@ -192,12 +198,16 @@ class MultiSetup:
         self.batch = batch
         self.guide_scale = guide_scale
 
-    def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
-        """Table II method `method` (a switching.METHODS rule, or a context variant)."""
+    def rules_for(self, method: str):
+        """(switching rules, estimator params) of Table II method `method` (a switching.METHODS
+        rule, or a context variant with its own estimators, lookup or persistence)."""
         var = self.variants.get(method, {})
         rules = sw.make_rules(switch_rule(method), lookup_m=var.get("lookup_m", self.lookup_m),
                               persist_steps=var.get("persist_steps"))
-        est_params = var.get("est_params", self.est_params)
+        return rules, var.get("est_params", self.est_params)
+
+    def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
+        rules, est_params = self.rules_for(method)
         return _run_batches(lambda rng, ids: self.run(self.suite.params, est_params, rules,
                                                       rng, ids), trials, self.batch, seed, print_fn,
                             f"{self.init}/{method}")
@@ -294,8 +304,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                    switches_per_trial=float(np.mean(merged["n_switches"])),
                    policies=list(sources), backend=env.backend)
         if method not in BASELINES:
-            parts = setups[init].parts.get(
-                "estimator" if method == "estimator_no_overlap" else method)
+            parts = setups[init].parts
+            parts = parts.get(method, parts.get(switch_rule(method)))
             if parts:
                 row["switch_parts"] = parts  # the estimators or lookup file per target
         rows.append(row)
@@ -334,14 +344,17 @@ def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]
     return sorted(kept + list(rows), key=lambda r: order.get(r["method"], len(order)))
 
 
-def failures_by_context(tracks, progress_frac, fell, fail_kind, detect_range_m: float = 0.9
-                        ) -> dict:
+def failures_by_context(tracks, progress_frac, fell, fail_kind,
+                        detect_range_m: float | None = None) -> dict:
     """{kind: {previous kind or "start": [reached, fell on it]}} over trials on `tracks`.
 
     Why a row fails, by where: an artifact is reached when the body came within `detect_range_m`
     of its start; a trial that fell is charged to the last artifact it reached if the env blamed
     that artifact's kind (`fail_kind`, env.blame_kind). Positions come from `progress_frac` along
-    start -> finish line (the start taken at x = 0: a few cm off)."""
+    start -> finish line (the start taken at x = 0: a few cm off). `detect_range_m` defaults to
+    the env's detection range."""
+    if detect_range_m is None:
+        detect_range_m = float(default_env_config().detect_range_m)
     out = {k: {} for k in terrain.ARTIFACT_KINDS}
     for i, t in enumerate(tracks):
         x = float(progress_frac[i]) * t.finish_x_m

@@ -206,7 +206,8 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     # only these fakes count: not the policies committed under models/policies/ (walk_random is)
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
     runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
-    _fake_ckpt(runs / "walk_stand")
+    for n in ("walk", "jumps", "gaps", "stairs"):  # the stand suite
+        _fake_ckpt(runs / f"{n}_stand")
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
@@ -214,8 +215,13 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
                         "lookup_context", "estimator_context", "estimator_context_persist"}
     assert "make train-dqn" in why["dqn"] and "--policy mixed" in why["end_to_end"]
     assert "random-init walk" in why["estimator_no_overlap"]
-    # once the parts exist, every method is available
+    # a suite with a policy missing is skipped, naming it
     _fake_ckpt(runs / "walk_random")
+    ok, skipped = table2.available_methods(["estimator_no_overlap"], runs, est, lookup)
+    assert ok == [] and "no random-init jumps, gaps, stairs policy" in skipped[0]
+    # once the parts exist, every method is available
+    for n in ("jumps", "gaps", "stairs"):
+        _fake_ckpt(runs / f"{n}_random")
     _fake_ckpt(runs / "mixed_stand")
     _fake_ckpt(runs / "dqn_stand")
     for init in ("stand", "random"):

@@ -318,7 +318,7 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
     assert sum(r[2] == "switch" for r in ev) == int(rec["switched"][:fig5.trial_length(rec)].sum()) > 0
     assert fig5.trial_outcome(rec) == "success"
     monkeypatch.setenv("BIPED_RUNS", str(synthetic_runs))
-    assert C.run_roots(synthetic) == [synthetic_runs] == [C.runs_root(synthetic)]
+    assert C.run_roots() == [synthetic_runs] == [C.runs_root()]
     runs = C.find_training_runs(synthetic)  # <results>/training/* and the runs folder
     by_name = {d.name: d for d in runs}
     assert sorted(by_name) == ["gaps_random", "gaps_stand", "jumps_stand", "walk_stand"]
@@ -330,8 +330,7 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
     assert C.train_command(synthetic_runs, "gaps")[-2:] == ["--out", str(synthetic_runs)]
     monkeypatch.delenv("BIPED_RUNS")
     assert C.runs_root() == REPO / "runs" and C.train_command()[-1] == "runs"
-    assert C.run_roots(REAL) == [REPO / "runs", POLICY_RUNS]  # runs/, then the committed runs
-    assert C.runs_root(REAL) == REPO / "runs"
+    assert C.run_roots() == [REPO / "runs", POLICY_RUNS]  # runs/, then the committed runs
     # Table III: hours whose runs cannot be found are not taken for complete runs
     t3 = json.loads((synthetic / "table3" / "table3.json").read_text())
     runs3, checks = table3.table3_checks(t3, synthetic, synthetic_runs)
@@ -432,23 +431,23 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
     argv = C.table3_command(root, None, "stand")
     assert argv[:3] == ["-m", "biped_switch.evaluate", "retrain-cost"]
     flags = dict(zip(argv[3::2], argv[4::2]))
-    assert flags == {"--runs": C.rel(C.runs_root(root)), "--results": C.rel(root), "--init": "stand",
+    assert flags == {"--runs": C.rel(C.runs_root()), "--results": C.rel(root), "--init": "stand",
                      "--out": C.rel(root / "table3")}
     flags["--out"] = str(tmp_path / "table3")  # not over the committed table
     assert evaluate.main(["retrain-cost", *[x for kv in flags.items() for x in kv]]) == 0
     doc = json.loads((tmp_path / "table3" / "table3.json").read_text())
     ours = next(r for r in doc["rows"] if r["method"] == "ours")["parts"]
     assert ours["sweep jumps"] is not None and ours["estimator gaps"] is not None  # read <results>
-    checks = table3.table3_checks(doc, root, C.runs_root(root))[1]
+    checks = table3.table3_checks(doc, root, C.runs_root())[1]
     # the trained suite's runs (runs/, else models/policies/): nothing from a pipeline check; a
     # run short of its step goal or curriculum flags the hours measured from it
     assert not any("pipeline" in n for notes in checks.values() for n in notes), checks
     e2e = next(r for r in doc["rows"] if r["method"] == "end_to_end")
     assert e2e["hours"] is not None  # the committed end-to-end run (models/policies/mixed_stand) ...
-    mixed = runs_lib.find_policy("mixed", "stand", C.runs_root(root)).parent.parent
+    mixed = runs_lib.find_policy("mixed", "stand", C.runs_root()).parent.parent
     assert bool(checks["end_to_end"]) == bool(runs_lib.run_notes(mixed))  # ... flagged iff unfinished
     for k in ("jumps", "gaps", "stairs"):  # ours: each unfinished new-policy run is named
-        d = runs_lib.find_policy(k, "stand", C.runs_root(root)).parent.parent
+        d = runs_lib.find_policy(k, "stand", C.runs_root()).parent.parent
         assert not runs_lib.run_notes(d) or any(d.name in n for n in checks["ours"]), (d, checks)
 
 
@@ -491,10 +490,10 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
         assert "hours from" in text
         # the verdict, and each method's "hours from" cell, follow from the runs as they are
         expect = []
-        table3.table3_provenance(doc, path, data_root, C.runs_root(data_root),
+        table3.table3_provenance(doc, path, data_root, C.runs_root(),
                                  print_fn=lambda *a: expect.append(" ".join(map(str, a))))
         assert verdicts == [expect[-1]], (verdicts, expect[-1])
-        checks = table3.table3_checks(doc, data_root, C.runs_root(data_root))[1]
+        checks = table3.table3_checks(doc, data_root, C.runs_root())[1]
         hdr, rows3 = table3.table3_rows(doc, checks)
         for row in rows3:
             line = next(ln for ln in text.splitlines() if ln.split()[:1] == [row[0]])

@@ -185,8 +185,8 @@ def test_context_plan_by_hand():
 
 
 def test_context_env_lays_out_the_plan():
-    env = sweep.make_context_env("stairs", "stand", 5, backend="mujoco")
     kinds, _, _ = sweep.context_plan("stairs", 5)
+    env = sweep.make_context_env(kinds, "stand", backend="mujoco")
     codes = [[sweep.terrain.ARTIFACT_KINDS[c] for c in row] for row in env.bank.artifact_codes]
     assert codes == kinds
     assert env.bank.artifact_codes.shape == (5, 2)

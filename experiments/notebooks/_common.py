@@ -46,13 +46,12 @@ REPO = _find_repo()
 NB_DIR = REPO / "experiments" / "notebooks"
 DEFAULT_RESULTS = REPO / "experiments" / "results"
 DEFAULT_RUNS = REPO / "runs"  # where train, make train-all and make reproduce write their runs
-COMMITTED_RUNS = REPO / "models" / "policies"  # the committed training runs (train --commit)
 if str(REPO) not in sys.path:  # biped_switch importable even without `pip install -e .`
     sys.path.insert(0, str(REPO))
 
 from biped_switch import paper  # noqa: E402  (the paper's numbers)
 from biped_switch.provenance import rel, repo_path  # noqa: E402
-from biped_switch.runs import curve_series  # noqa: E402
+from biped_switch.runs import COMMITTED_DIR, curve_series  # noqa: E402
 from biped_switch.stats import wilson_ci  # noqa: E402
 
 METHOD_LABELS = {"random": "Random", "detection": "On detection", "lookup": "Lookup table",
@@ -74,20 +73,19 @@ def results_root() -> pathlib.Path:
     return _env_path("BIPED_RESULTS") or DEFAULT_RESULTS
 
 
-def runs_root(results=None) -> pathlib.Path:
-    """The runs folder a results root was (or is to be) made from: $BIPED_RUNS (relative paths
-    from the repository root), else <repo>/runs, where `train` writes (find_policy then also looks
-    in models/policies/). `results` is accepted for the callers' symmetry; it does not change the
-    answer."""
+def runs_root() -> pathlib.Path:
+    """The runs folder results are (or are to be) made from: $BIPED_RUNS (relative paths from the
+    repository root), else <repo>/runs, where `train` writes (find_policy then also looks in
+    models/policies/)."""
     env = _env_path("BIPED_RUNS")
     return env if env is not None else DEFAULT_RUNS
 
 
-def run_roots(results=None) -> list[pathlib.Path]:
+def run_roots() -> list[pathlib.Path]:
     """Every folder searched for training runs: [$BIPED_RUNS] when set, else <repo>/runs and the
     committed runs in models/policies/ (where runs.find_policy looks after runs/)."""
     env = _env_path("BIPED_RUNS")
-    return [env] if env is not None else [DEFAULT_RUNS, COMMITTED_RUNS]
+    return [env] if env is not None else [DEFAULT_RUNS, COMMITTED_DIR]
 
 
 class MissingResult(FileNotFoundError):
@@ -147,15 +145,15 @@ MULTI_KEYS = ("methods", "trials", "batch", "horizon_s", "n_artifacts", "seed", 
 
 
 def table3_command(results: pathlib.Path, runs=None, init: str = "stand") -> list[str]:
-    """retrain-cost reading the runs in `runs` (default `runs_root(results)`) and the sweeps and
+    """retrain-cost reading the runs in `runs` (default `runs_root()`) and the sweeps and
     estimators of `results`, writing <results>/table3: the same root the notebook reads."""
-    runs = runs_root(results) if runs is None else pathlib.Path(runs)
+    runs = runs_root() if runs is None else pathlib.Path(runs)
     return ["-m", "biped_switch.evaluate", "retrain-cost", "--runs", rel(runs),
             "--results", rel(results), "--init", init, "--out", rel(results / "table3")]
 
 
 def lookup_command(results: pathlib.Path, init: str = "stand", runs=None) -> list[str]:
-    runs = runs_root(results) if runs is None else pathlib.Path(runs)
+    runs = runs_root() if runs is None else pathlib.Path(runs)
     return ["-m", "biped_switch.sweep", "--init", init, "--runs", rel(runs),
             "--results", rel(results / "lookup")]
 
@@ -405,9 +403,9 @@ def read_csv(path) -> dict:
 
 def find_training_runs(results: pathlib.Path, roots: Sequence | None = None,
                        extra: Sequence = ()) -> list[pathlib.Path]:
-    """Run folders with a metrics.csv: <root>/*/ for each of `roots` (default `run_roots(results)`:
+    """Run folders with a metrics.csv: <root>/*/ for each of `roots` (default `run_roots()`:
     runs/, where train writes), <results>/training/*/, <results>/training_*/ and `extra`."""
-    roots = run_roots(results) if roots is None else roots
+    roots = run_roots() if roots is None else roots
     found = ({p.parent for p in results.glob("training/*/metrics.csv")}
              | {p.parent for p in results.glob("training_*/metrics.csv")}
              | {p.parent for r in roots for p in pathlib.Path(r).glob("*/metrics.csv")}
