@@ -103,7 +103,8 @@ train-estimators: $(STAMP)
 	$(PY) -m biped_switch.estimator --init random $(ESTIMATOR_ARGS)
 
 # DQN selector baseline (paper Sec. IV-C), on mixed tracks over the stand-init policy suite; resumes
-# from runs/dqn_stand/. DQN_ARGS e.g. "--preset cpu --stand-in walk" before all policies exist.
+# from runs/dqn_stand/, else from its committed copy models/baselines/dqn_stand/ (`--commit` writes
+# it). The preset follows the platform (cpu: 64 envs, 10M env steps; gpu: 512 envs, 20M).
 DQN_ARGS ?=
 train-dqn: $(STAMP)
 	$(PY) -m biped_switch.dqn $(DQN_ARGS)

@@ -205,8 +205,9 @@ def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
 
 
 def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
-    """The DQN selector baseline (dqn.py); `preset` "cpu" is a tiny run for a 2-core machine
-    (pipeline checks only)."""
+    """The DQN selector baseline (dqn.py). `preset` "cpu" is the real training run for a 2-core
+    machine: 64 envs (about 1,500 env steps/s here beside 4 PPO runs, updates included), the same
+    networks, 4 replayed samples per transition (the GPU preset: 2), a 3 GB buffer."""
     cfg = config_dict.create(
         init="stand",
         seed=0,
@@ -235,11 +236,10 @@ def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
         network=config_dict.create(hm_hidden=(128, 64), hidden=(256, 256)),  # as the policies
     )
     if preset == "cpu":
-        cfg.update(n_tracks=16, num_envs=8, total_env_steps=20_000, chunk_env_steps=4_000,
-                   log_every=50, replay_capacity=20_000, batch_size=64, learning_starts=1_000,
-                   updates_per_collect=1, target_update_period=200)
-        cfg.epsilon.decay_steps = 10_000
-        cfg.network.update(hm_hidden=(32,), hidden=(64, 64))
+        cfg.update(num_envs=64, total_env_steps=10_000_000, chunk_env_steps=256_000,
+                   log_every=200, replay_capacity=300_000, batch_size=256, learning_starts=50_000,
+                   updates_per_collect=1)  # a target sync every 1,000 updates = 64k env steps
+        cfg.epsilon.decay_steps = 2_000_000
     elif preset != "gpu":
         raise ValueError(f"unknown preset {preset!r}; expected 'gpu' or 'cpu'")
     return cfg

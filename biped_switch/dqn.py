@@ -76,6 +76,7 @@ choice on given tracks and returns the same per-episode keys as `switching.multi
 from __future__ import annotations
 
 import argparse
+import csv
 import functools
 import math
 import pathlib
@@ -517,6 +518,50 @@ def summarize_run(sums: dict, iterations: int) -> dict:
             "detected_frac": s["detected"] / iterations, "epsilon": s["epsilon"]}
 
 
+def plot_curves(run_dir, out_png) -> None:
+    """The DQN's learning curves (metrics.csv, one row per jitted call): episode return and
+    success, the share of steps on the oracle's policy, and the TD loss, Q and epsilon."""
+    import matplotlib  # lazy, as runs.plot_curves
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with (pathlib.Path(run_dir) / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    ep_rows = [r for r in rows if float(r.get("episodes") or 0) > 0]
+
+    def series(key, src=rows):
+        return runs_lib.curve_series(src, key)
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
+    for key, ax, style in (("episode_env_return", axes[0], "-"),
+                           ("episode_success", axes[0].twinx(), "g:")):
+        xy = series(key, ep_rows)
+        ax.plot(xy[:, 0], xy[:, 1], style, label=key)
+        ax.set_ylabel(key)
+    axes[0].set_title("training episodes (epsilon-greedy)")
+    for key in ("correct_choice_frac", "epsilon"):
+        xy = series(key)
+        axes[1].plot(xy[:, 0], xy[:, 1], label=key)
+    axes[1].set_ylim(-0.02, 1.02)
+    axes[1].legend(fontsize=8)
+    axes[1].set_title("choice = the oracle's policy; exploration")
+    xy = series("loss")
+    axes[2].plot(xy[:, 0], xy[:, 1], label="TD loss (Huber)")
+    axes[2].set_ylabel("loss")
+    q_ax = axes[2].twinx()
+    xy = series("q_mean")
+    q_ax.plot(xy[:, 0], xy[:, 1], "r:", label="mean Q")
+    q_ax.set_ylabel("mean Q", color="r")
+    axes[2].set_title("learning")
+    for ax in axes:
+        ax.set_xlabel("environment steps")
+    fig.suptitle(str(run_dir))
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+
+
 # ----------------------------------------------------------------------- checkpoints
 def _opt_to_dict(opt_state) -> dict:
     return {f"{i:04d}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(opt_state))}
@@ -704,7 +749,8 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
 def main(argv=None) -> int:
 
     p = argparse.ArgumentParser(prog="python -m biped_switch.dqn", description=__doc__.split("\n")[0])
-    p.add_argument("--preset", default="gpu", choices=("gpu", "cpu"))
+    p.add_argument("--preset", default=None, choices=("gpu", "cpu"),
+                   help="default: cpu on a CPU host, else gpu")
     p.add_argument("--init", default="stand", choices=env_lib.INITS)
     p.add_argument("--total-steps", type=int, default=None)
     p.add_argument("--chunk-steps", type=int, default=None)
@@ -718,19 +764,28 @@ def main(argv=None) -> int:
                    help="use this policy for any that is not trained yet (pipeline checks only)")
     p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+    p.add_argument("--commit", action="store_true",
+                   help=f"copy the run's latest checkpoint, config, metrics and curves to "
+                        f"{runs_lib.BASELINE_DIR}/<run>/ (then git-commit that folder) and exit")
     a = p.parse_args(argv)
-    cfg = default_dqn_config(a.preset)
+    run_dir = pathlib.Path(a.out or pathlib.Path(a.runs) / f"dqn_{a.init}")
+    if a.commit:
+        out = runs_lib.commit_run(run_dir, runs_lib.BASELINE_DIR / run_dir.name, plot_curves)
+        print(f"committed copy: {out}")
+        return 0
+    preset = a.preset or ("cpu" if jax.default_backend() == "cpu" else "gpu")
+    cfg = default_dqn_config(preset)
     cfg.init, cfg.seed = a.init, a.seed
     for attr, val in (("total_env_steps", a.total_steps), ("chunk_env_steps", a.chunk_steps),
                       ("num_envs", a.num_envs), ("oracle_bonus", a.oracle_bonus)):
         if val is not None:
             cfg[attr] = val
-    run_dir = pathlib.Path(a.out or pathlib.Path(a.runs) / f"dqn_{a.init}")
-    print(f"training the DQN selector ({a.init} policies) on {jax.devices()[0].platform}: "
+    runs_lib.restore_committed(run_dir, print, runs_lib.BASELINE_DIR)
+    say = runs_lib.train_log(run_dir, functools.partial(print, flush=True), runs_lib.BASELINE_DIR)
+    say(f"training the DQN selector ({a.init} policies) on {jax.devices()[0].platform}: "
           f"{cfg.total_env_steps:,} env steps, {cfg.num_envs} envs, checkpoints every "
-          f"{cfg.chunk_env_steps:,} -> {run_dir}", flush=True)
-    train_dqn(cfg, run_dir, a.runs, a.stand_in, a.max_chunks,
-              print_fn=functools.partial(print, flush=True), backend=a.backend)
+          f"{cfg.chunk_env_steps:,} ({preset} preset) -> {run_dir}")
+    train_dqn(cfg, run_dir, a.runs, a.stand_in, a.max_chunks, print_fn=say, backend=a.backend)
     return 0
 
 

@@ -500,6 +500,7 @@ class BipedEnv(Env):
         passed = jnp.sum((info["art_x1"] < x) & (info["art_kind"] >= 0))
         blamed = blame_kind(x, info["art_x0"], info["art_x1"], info["art_kind"],
                             self.cfg.detect_range_m, self.terrain_cfg.finish_after_m)
+        met = kinds_met(x, info["art_x0"], info["art_kind"], self.cfg.detect_range_m)
         return {
             "distance_m": (x - info["start_x"]).astype(jnp.float32),
             "progress_frac": jnp.clip((x - info["start_x"]) / span, 0.0, 1.0).astype(jnp.float32),
@@ -508,7 +509,18 @@ class BipedEnv(Env):
             "fell": jnp.asarray(fell, jnp.float32),
             "fail_kind": jnp.where(fell > 0, blamed, -1).astype(jnp.float32),
             "detected_kind": feat["detect"]["kind"].astype(jnp.float32),
-        } | {f"reward/{k}": v for k, v in terms.items()}
+        } | {f"met_{k}": met[i] for i, k in enumerate(terrain.ARTIFACT_KINDS)} | {
+            f"reward/{k}": v for k, v in terms.items()}
+
+
+def kinds_met(x, art_x0, art_kind, detect_range_m: float):
+    """(3,) float32: 1 for each artifact kind (terrain.ARTIFACT_KINDS order) whose detection zone the CoM
+    at `x` [m] has entered (start - `detect_range_m` <= x). At an episode's end: the kinds it met,
+    which shows whether `mixed` training episodes are long enough to see every kind."""
+    reached = (art_x0 - detect_range_m <= x) & (art_kind >= 0)
+    codes = jnp.arange(len(terrain.ARTIFACT_KINDS))
+    return jnp.any(reached[None, :] & (art_kind[None, :] == codes[:, None]), axis=1).astype(
+        jnp.float32)
 
 
 def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: float):

@@ -26,6 +26,8 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from biped_switch.terrain import ARTIFACT_KINDS
+
 PolicyFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs batch, rng) -> action batch
 # act(carry, state, live, key) -> (action batch, carry, aux): `state` the batch's env states
 # (leading axis B), `live` (B,) bool, `key` this step's key (None without `rng`); `aux` (anything)
@@ -153,6 +155,11 @@ def summarize(result: dict, horizon: int) -> dict:
     out = {k: float(jnp.mean(v)) / (horizon if k.startswith("reward/") else 1)
            for k, v in result.items()}
     out["reward_per_step"] = float(jnp.mean(result["reward"]) / horizon)
+    if "fail_kind" in result:  # a mean of kind codes says nothing: the share of episodes that
+        fail, fell = jnp.asarray(result["fail_kind"]), jnp.asarray(result["fell"]) > 0
+        for code, kind in enumerate(ARTIFACT_KINDS):  # fell at each kind, and on plain ground
+            out[f"fell_at/{kind}"] = float(jnp.mean(fell & (fail == code)))
+        out["fell_at/flat"] = float(jnp.mean(fell & (fail == -1)))
     return out
 
 

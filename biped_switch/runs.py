@@ -232,9 +232,11 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
 
 
 # ----------------------------------------------------------------------- committed runs
-def restore_committed(run_dir: pathlib.Path, print_fn=print) -> None:
-    """A run absent from runs/ resumes from its committed copy under models/policies/."""
-    committed = COMMITTED_DIR / run_dir.name
+def restore_committed(run_dir: pathlib.Path, print_fn=print,
+                      committed_root: pathlib.Path | None = None) -> None:
+    """A run absent from runs/ resumes from its committed copy under `committed_root`
+    (default `COMMITTED_DIR`, models/policies/, for PPO; models/baselines/ for the DQN)."""
+    committed = (committed_root or COMMITTED_DIR) / run_dir.name
     if latest_checkpoint(run_dir) is None and latest_checkpoint(committed) is not None:
         run_dir.mkdir(parents=True, exist_ok=True)
         for item in committed.iterdir():
@@ -246,12 +248,12 @@ def restore_committed(run_dir: pathlib.Path, print_fn=print) -> None:
         print_fn(f"no checkpoint under {run_dir}: resuming from the committed {committed}")
 
 
-def train_log(run_dir: pathlib.Path, print_fn=print):
+def train_log(run_dir: pathlib.Path, print_fn=print, committed_root: pathlib.Path | None = None):
     """A print function that also appends each line to <run_dir>/train.log, the run's progress
     history across sessions (`commit_run` commits it). A run folder without one continues its
     committed copy's. Starts the session's part with a dated header."""
     path = pathlib.Path(run_dir) / "train.log"
-    committed = COMMITTED_DIR / pathlib.Path(run_dir).name / "train.log"
+    committed = (committed_root or COMMITTED_DIR) / pathlib.Path(run_dir).name / "train.log"
     if not path.exists() and committed.exists():
         shutil.copy2(committed, path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -266,9 +268,11 @@ def train_log(run_dir: pathlib.Path, print_fn=print):
     return say
 
 
-def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None) -> pathlib.Path:
-    """Copies a run's latest checkpoint, config, metrics and curves to models/policies/<run>/
-    (only the latest checkpoint), for a later session or a fresh clone to resume from."""
+def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None,
+               plot_fn=None) -> pathlib.Path:
+    """Copies a run's latest checkpoint, config, metrics and curves (`plot_fn(run_dir, png)`,
+    default `plot_curves`: PPO's) to models/policies/<run>/ (only the latest checkpoint), for a
+    later session or a fresh clone to resume from."""
     out = out_dir or COMMITTED_DIR / run_dir.name
     ckpt = latest_checkpoint(run_dir)
     if ckpt is None:
@@ -281,7 +285,7 @@ def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None) -> pa
         if (run_dir / name).exists():
             shutil.copy2(run_dir / name, out / name)
     if (run_dir / "metrics.csv").exists():
-        plot_curves(run_dir, out / "curves.png")
+        (plot_fn or plot_curves)(run_dir, out / "curves.png")
     return out
 
 

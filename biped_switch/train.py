@@ -39,6 +39,7 @@ from biped_switch import runs as runs_lib
 from biped_switch.config import TRAIN_TRACK_SEED, default_train_config
 from biped_switch.policies import POLICY_NAMES
 from biped_switch.rollout import rollout, summarize
+from biped_switch.terrain import ARTIFACT_KINDS
 
 # "mixed": the end-to-end baseline (issue 5), one policy trained on multi-artifact tracks with the
 # same reward and guided curriculum
@@ -59,6 +60,16 @@ def milestone_rollout(env, act, rng, eval_cfg, levels) -> dict:
     at the curriculum's levels (difficulty, guide_scale, push_scale; traced ok)."""
     return rollout(env, act, rng, n_envs=eval_cfg.n_envs, horizon=eval_cfg.horizon_steps,
                    reset_args=dict(zip(("difficulty", "guide_scale", "push_scale"), levels)))
+
+
+def fell_where(ev: dict) -> str:
+    """" (gaps 0.20, flat 0.05)": where the milestone episodes fell, for a stalled curriculum;
+    with more than one kind on the tracks (`mixed`) also " met jumps 0.90, gaps 0.80, ...": the
+    shares of episodes that reached each kind's detection zone."""
+    fell = [f"{k.split('/')[1]} {v:.2f}" for k, v in ev.items() if k.startswith("fell_at/") and v > 0]
+    met = [f"{k} {ev[f'met_{k}']:.2f}" for k in ARTIFACT_KINDS if ev.get(f"met_{k}", 0.0) > 0]
+    return (f" ({', '.join(fell)})" if fell else "") + (f"; met {', '.join(met)}" if len(met) > 1
+                                                         else "")
 
 
 def restore(ckpt: pathlib.Path, template: "ppo.TrainState"):
@@ -219,7 +230,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         strike = (f" (fell > regress_fell: strike {int(new_cs.strikes)}/"
                   f"{cfg.curriculum.regress_patience})" if int(new_cs.strikes) else "")
         print_fn(f"[{cfg.policy}/{cfg.init}] chunk done at step {step:,}: eval reward/step "
-                 f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}, success {ev['success']:.2f}, "
+                 f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}{fell_where(ev)}, success "
+                 f"{ev['success']:.2f}, "
                  f"distance {ev['distance_m']:.2f} m; curriculum {cs.as_dict()['stage_name']} "
                  f"d={float(cs.difficulty):.2f} -> {new_cs.as_dict()['stage_name']} "
                  f"d={float(new_cs.difficulty):.2f} guide={float(new_cs.guide_scale):.2f} "

@@ -14,6 +14,7 @@ from brax.envs.base import Env, State
 
 from biped_switch import dqn
 from biped_switch import policies as pol
+from biped_switch import runs as runs_lib
 from biped_switch.config import default_dqn_config
 from biped_switch.env import STATE_SIZE
 
@@ -363,6 +364,7 @@ def _tiny_cfg(**kw):
     cfg.update(num_envs=4, log_every=5, chunk_env_steps=40, total_env_steps=120, learning_starts=20,
                replay_capacity=200, batch_size=16, updates_per_collect=1, target_update_period=4,
                max_episode_s=0.2)
+    cfg.epsilon.decay_steps = 10_000
     cfg.network.update(hm_hidden=(4,), hidden=(16,))
     cfg.update(**kw)
     return cfg
@@ -389,7 +391,7 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     assert p1["stand_in"] == "walk" and p1["policies"] == ["fake"] * 4 and p1["wall_s"] > 0
     assert p1["buffer_saved"] is False and p1["q_input_size"] == Q_IN
     # an unfinished run shows it: step 40 of the planned 120; the saved epsilon is the schedule's
-    # value at the saved step (cpu preset: 1 -> 0.05 over 10,000 env steps)
+    # value at the saved step (1 -> 0.05 over 10,000 env steps)
     assert p1["total_env_steps"] == 120 and p1["epsilon"] == pytest.approx(1.0 - 0.95 * 40 / 10_000)
     assert 0 < p1["setup_s_total"] == p1["session_setup_s"] < p1["wall_s"]
     last = p1["last"]  # iterations 6..10: every env finishes its episode (6 steps) at iteration 6
@@ -413,6 +415,16 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     x = np.linspace(-1, 1, 3 * Q_IN, dtype=np.float32).reshape(3, Q_IN)
     _check_resumed_run(tmp_path, cfg, env, suite.apply, lines, 120, q1, x)
     assert dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite) == {}  # done
+    # the committed copy (models/baselines/ in the CLI): the latest checkpoint only, the curves;
+    # a fresh run folder resumes from it
+    out = runs_lib.commit_run(tmp_path, tmp_path / "committed" / "dqn_stand", dqn.plot_curves)
+    assert [c.name for c in (out / "checkpoints").iterdir()] == [f"{120:012d}"]
+    assert (out / "curves.png").stat().st_size > 10_000 and (out / "metrics.csv").exists()
+    fresh = tmp_path / "fresh" / "dqn_stand"
+    runs_lib.restore_committed(fresh, lines.append, tmp_path / "committed")
+    assert runs_lib.read_progress(runs_lib.latest_checkpoint(fresh))["step"] == 120
+    assert "resuming from the committed" in lines[-1]
+    assert dqn.train_dqn(cfg, fresh, print_fn=lines.append, env=env, suite=suite) == {}
 
 
 def test_run_loop_syncs_target_every_period_and_follows_epsilon():

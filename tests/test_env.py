@@ -592,6 +592,22 @@ def test_blame_kind_hand_cases():
         assert got == want, (x, got, want)
 
 
+def test_kinds_met_hand_cases():
+    """Kinds whose detection zone (0.9 m before the start) the CoM has entered, in
+    (jumps, gaps, stairs) order; padding (kind -1) never counts."""
+    x0 = np.array([5.0, 7.0, 9.0, terrain.FAR_X_M])
+    kind = np.array([1, 2, 1, -1])  # gaps, stairs, gaps, padding
+    cases = {0.0: [0, 0, 0],
+             4.05: [0, 0, 0],   # 0.95 m before the gaps
+             4.15: [0, 1, 0],   # 0.85 m before: in its zone
+             6.2: [0, 1, 1],    # 0.8 m before the stairs
+             20.0: [0, 1, 1],   # the second gaps add nothing; no jumps on this track
+             1e9: [0, 1, 1]}    # beyond the padding's x: padding is not a kind
+    for x, want in cases.items():
+        got = np.asarray(env_lib.kinds_met(jnp.float32(x), x0, kind, 0.9)).tolist()
+        assert got == want, (x, got, want)
+
+
 def _pushes(e, n=20_000, scale=0.5):
     """`e._push` from rest on n keys: (started (n,), force (n, 3) [N], time left (n,) [s])."""
     info = {"rng": jax.random.split(jax.random.PRNGKey(3), n),

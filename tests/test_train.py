@@ -29,6 +29,21 @@ def test_rollout_freezes_each_episode_at_its_end():
     assert s["reward_per_step"] == pytest.approx(1.5)
 
 
+def test_summary_splits_falls_by_kind_and_names_them():
+    """4 episodes: fell at gaps, fell at gaps, fell on flat ground, finished; a mixed track's
+    episodes met jumps 1/4, gaps 3/4, stairs 2/4."""
+    res = {"reward": jnp.full(4, 10.0), "fell": jnp.array([1.0, 1.0, 1.0, 0.0]),
+           "fail_kind": jnp.array([1.0, 1.0, -1.0, -1.0]),
+           "met_jumps": jnp.array([0.0, 0.0, 0.0, 1.0]), "met_gaps": jnp.array([1.0, 1.0, 0.0, 1.0]),
+           "met_stairs": jnp.array([0.0, 0.0, 1.0, 1.0])}
+    s = summarize(res, 10)
+    assert (s["fell_at/jumps"], s["fell_at/gaps"], s["fell_at/stairs"], s["fell_at/flat"]) == (
+        0.0, 0.5, 0.0, 0.25)
+    assert train_lib.fell_where(s) == " (gaps 0.50, flat 0.25); met jumps 0.25, gaps 0.75, stairs 0.50"
+    one_kind = {**s, "met_jumps": 0.0, "met_stairs": 0.0, "fell_at/flat": 0.0}
+    assert train_lib.fell_where(one_kind) == " (gaps 0.50)"  # one kind's tracks: no "met"
+
+
 def test_normalizer_matches_numpy_over_all_batches():
     rng = np.random.default_rng(0)
     batches = [rng.normal(3.0, 2.0, size=(n, 5)).astype(np.float32) for n in (7, 50, 3)]
