@@ -554,12 +554,7 @@ def plot_curves(run_dir, out_png) -> None:
     q_ax.plot(xy[:, 0], xy[:, 1], "r:", label="mean Q")
     q_ax.set_ylabel("mean Q", color="r")
     axes[2].set_title("learning")
-    for ax in axes:
-        ax.set_xlabel("environment steps")
-    fig.suptitle(str(run_dir))
-    fig.tight_layout()
-    fig.savefig(out_png, dpi=110)
-    plt.close(fig)
+    runs_lib.save_curves(fig, axes, run_dir, out_png)
 
 
 # ----------------------------------------------------------------------- checkpoints

@@ -223,6 +223,13 @@ def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
         axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)
     axes[2].set_title("curriculum")
     axes[2].legend(fontsize=8)
+    save_curves(fig, axes, run_dir, out_png)
+
+
+def save_curves(fig, axes, run_dir, out_png) -> None:
+    """The common end of a run's curve figure: step axes, the run as the title, saved, closed."""
+    import matplotlib.pyplot as plt
+
     for ax in axes:
         ax.set_xlabel("environment steps")
     fig.suptitle(str(run_dir))
