@@ -56,8 +56,10 @@ from biped_switch.paper import TABLE2_FAIL_ORDER
 from biped_switch.policies import POLICY_NAMES
 from biped_switch.runs import BASELINE_DIR, find_policy
 from biped_switch.table1 import HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, table1_markdown
-from biped_switch.table2 import (MULTI_METHODS, available_methods, evaluate_multi,
+from biped_switch.fig4b import plot_switch_distances
+from biped_switch.table2 import (BASELINES, MULTI_METHODS, available_methods, evaluate_multi,
                                  failures_by_context, failures_markdown, merge_rows, mixed_track,
+                                 switch_outcomes, switch_summary, switches_markdown,
                                  table2_markdown, trial_track)
 from biped_switch.table3 import retrain_cost, table3_markdown
 from biped_switch.terrain import ARTIFACT_KINDS
@@ -115,7 +117,21 @@ def main(argv=None) -> int:
     f.add_argument("--out", default="experiments/results/table2",
                    help="the table2.json and table2_trials.npz of `evaluate multi`; writes "
                         "failures_by_context.md and .json there")
+    w = sub.add_parser("switches", help="where each rule switched, and what it cost "
+                                        "(switch_distances.md/.json/.png)")
+    w.add_argument("--methods", nargs="+", default=["com_over_feet", "lookup", "lookup_context"],
+                   choices=[m for m in MULTI_METHODS if m not in BASELINES])
+    w.add_argument("--trials", type=int, default=500, help="Table II's first trials (tracks)")
+    for flag, default in (("--batch", 250), ("--seed", 0)):
+        w.add_argument(flag, type=int, default=default)
+    for flag, default in (("--runs", "runs"), ("--estimators", "models/estimators"),
+                          ("--lookup", "experiments/results/lookup"),
+                          ("--out", "experiments/results/table2")):
+        w.add_argument(flag, default=default)
+    w.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
     a = p.parse_args(argv)
+    if a.cmd == "switches":
+        return _main_switches(a, p)
     if a.cmd == "failures":
         return _main_failures(pathlib.Path(a.out))
     if a.cmd == "multi":
@@ -232,6 +248,41 @@ def _main_failures(out: pathlib.Path) -> int:
     print(md)
     (out / "failures_by_context.md").write_text(md + "\n")
     (out / "failures_by_context.json").write_text(json.dumps(by_method, indent=1))
+    return 0
+
+
+def _main_switches(a, p) -> int:
+    """Table II's rollouts (60 s, 7 artifacts, the same first `--trials` tracks and seeds) with
+    every switch logged: its distance before the artifact and whether that artifact was lost."""
+    if a.trials < 1 or a.batch < 1:
+        p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
+    methods, skipped = available_methods(a.methods, a.runs, a.estimators, a.lookup)
+    for sk in skipped:
+        print(f"skipped {sk}", file=sys.stderr)
+    if not methods:
+        return 1
+    t0, per_trial, n_art = time.perf_counter(), {}, 7
+    evaluate_multi(methods, a.trials, min(a.batch, a.trials), 60.0, a.seed, a.runs, None,
+                   a.estimators, a.lookup, print_fn=lambda *s: print(*s, flush=True),
+                   n_artifacts=n_art, backend=a.backend, per_trial=per_trial)
+    tracks = [mixed_track(MULTI_TRACK_SEED + i, n_art) for i in range(a.trials)]
+    by_method = {m: switch_summary(switch_outcomes(tracks, d["switch_ahead_m"], d["progress_frac"],
+                                                   d["fell"], d["fail_kind"]))
+                 for m, d in per_trial.items()}
+    out = pathlib.Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    md = switches_markdown(by_method)
+    print(md)
+    (out / "switch_distances.md").write_text(md + "\n")
+    wall = time.perf_counter() - t0
+    (out / "switch_distances.json").write_text(json.dumps(
+        {"settings": {"trials": a.trials, "batch": min(a.batch, a.trials), "seed": a.seed,
+                      "horizon_s": 60.0, "n_artifacts": n_art, "track_seed": MULTI_TRACK_SEED,
+                      "backend": a.backend, "methods": methods},
+         "wall_s": wall, "by_method": by_method}, indent=1))
+    plot_switch_distances(by_method, out / "switch_distances_gaps.png", "gaps")
+    print(f"wrote {out / 'switch_distances.md'}, .json and switch_distances_gaps.png "
+          f"({wall:.0f} s)")
     return 0
 
 

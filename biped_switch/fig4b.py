@@ -81,3 +81,38 @@ def lookup_provenance(doc: dict, path, print_fn=print) -> list[str]:
     if few:
         reasons.append(f"sweep points {', '.join(few)} (paper: {paper.SWEEP_POINTS:,} per target)")
     return prov.conclude(doc, reasons, print_fn=print_fn)
+
+
+def plot_switch_distances(by_method: dict, path, kind: str = "gaps") -> None:
+    """Where Table II's rules switched into `kind`'s policy (`table2.switch_summary` per method),
+    one panel per artifact before it: the share of switches per 0.1 m of distance (lines) and the
+    share of those that then fell on the artifact (dots, right axis), against Fig. 4b's axis."""
+    import matplotlib  # lazy: only the figure needs it
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    prevs = list(dict.fromkeys(p for d in by_method.values() for p in d.get(kind, {})))
+    fig, axes = plt.subplots(1, max(len(prevs), 1), figsize=(4.6 * max(len(prevs), 1), 3.4),
+                             squeeze=False)
+    for ax, prev in zip(axes[0], prevs):
+        lost_ax = ax.twinx()
+        for i, (m, d) in enumerate(by_method.items()):
+            c = d.get(kind, {}).get(prev)
+            if not c:
+                continue
+            b = np.array(c["lost_by_ahead"], float).reshape(-1, 4)
+            mid = 0.5 * (b[:, 0] + b[:, 1])
+            color = f"C{i}"
+            ax.plot(mid, b[:, 2] / c["n"], "-", color=color,
+                    label=f"{m} (n {c['n']:,}, lost {c['lost_pct']:.0f}%)")
+            lost_ax.plot(mid, 100 * b[:, 3] / np.maximum(b[:, 2], 1), "o", color=color, ms=4)
+        ax.set_title(f"into {kind}, after {prev}")
+        ax.set_xlabel("switch distance before the artifact [m]")
+        ax.set_ylabel("share of switches")
+        lost_ax.set_ylabel("% of them lost (dots)")
+        lost_ax.set_ylim(-2, 102)
+        ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

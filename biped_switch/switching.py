@@ -222,23 +222,33 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
     Runs in chunks of `chunk` steps and stops early once every episode has ended
     (`rollout.run_episodes`; ended episodes step on unread). Returns the per-episode final env
     metrics, `length` (live steps), `done` and `n_switches`. `guide_scale` > 0 turns the scripted
-    gait's guide forces on (tests and diagnostics only)."""
+    gait's guide forces on (tests and diagnostics only).
+
+    Also `switch_ahead_m` (n_envs, A): for each of the track's A artifact slots (sorted by x, as
+    the detector indexes them), the distance [m] from the CoM to its start when the controller
+    switched into its policy; NaN where it never did. Which rule switches where, and what that
+    cost (`table2.switch_distances`)."""
     reset_keys, k_run = episode_keys(rng, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
     state = reset_by_track(env, reset_keys, track_ids,
                            guide_scale=guide_scale)
     switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules)
+    slots = jnp.arange(state.info["art_x0"].shape[-1])
 
     def act(c, state, live, _):
-        ss, key = c
+        ss, key, ahead = c
         key, k_u = jax.random.split(key)  # a carried key, split per step (the random rule's draws)
-        action, ss, _, _ = switch_act(ss, state, live, jax.random.uniform(k_u, (n_envs,)))
-        return action, (ss, key), None
+        action, ss, ci, switched = switch_act(ss, state, live, jax.random.uniform(k_u, (n_envs,)))
+        det = ci["detect"]
+        hit = (switched & live)[:, None] & (slots[None, :] == det["index"][:, None])
+        ahead = jnp.where(hit, det["dist_m"][:, None], ahead)
+        return action, (ss, key, ahead), None
 
-    ep = run_episodes(env, state, horizon, act, (init_state(n_envs), k_run), chunk=chunk)
+    ahead0 = jnp.full((n_envs, slots.shape[0]), jnp.nan, jnp.float32)
+    ep = run_episodes(env, state, horizon, act, (init_state(n_envs), k_run, ahead0), chunk=chunk)
     return {**ep.metrics, "length": ep.length, "done": ep.done,
-            "n_switches": ep.carry[0].n_switches}
+            "n_switches": ep.carry[0].n_switches, "switch_ahead_m": ep.carry[2]}
 
 
 def trace_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,

@@ -316,7 +316,7 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
 
 # Per-trial outcomes `evaluate multi` keeps beside the table (table2_trials.npz): trial i ran on
 # track MULTI_TRACK_SEED + i; fail_kind is the ARTIFACT_KINDS code of the artifact fallen on (-1: none)
-TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches")
+TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches", "switch_ahead_m")
 
 
 # The settings that fix what a Table II row measured: rows made with equal values of these are
@@ -344,22 +344,28 @@ def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]
     return sorted(kept + list(rows), key=lambda r: order.get(r["method"], len(order)))
 
 
+def _reached(track, progress_frac: float, detect_range_m: float) -> tuple[float, list[int]]:
+    """(x [m] of the trial's end, the indices of the artifacts whose detection zone it entered).
+    Positions come from `progress_frac` along start -> finish line (the start taken at x = 0:
+    a few cm off)."""
+    x = float(progress_frac) * track.finish_x_m
+    return x, [k for k, (_, a0, _) in enumerate(track.artifacts) if a0 - detect_range_m <= x]
+
+
 def failures_by_context(tracks, progress_frac, fell, fail_kind,
                         detect_range_m: float | None = None) -> dict:
     """{kind: {previous kind or "start": [reached, fell on it]}} over trials on `tracks`.
 
     Why a row fails, by where: an artifact is reached when the body came within `detect_range_m`
     of its start; a trial that fell is charged to the last artifact it reached if the env blamed
-    that artifact's kind (`fail_kind`, env.blame_kind). Positions come from `progress_frac` along
-    start -> finish line (the start taken at x = 0: a few cm off). `detect_range_m` defaults to
-    the env's detection range."""
+    that artifact's kind (`fail_kind`, env.blame_kind). `detect_range_m` defaults to the env's
+    detection range."""
     if detect_range_m is None:
         detect_range_m = float(default_env_config().detect_range_m)
     out = {k: {} for k in terrain.ARTIFACT_KINDS}
     for i, t in enumerate(tracks):
-        x = float(progress_frac[i]) * t.finish_x_m
         arts = t.artifacts
-        reached = [k for k, (_, a0, _) in enumerate(arts) if a0 - detect_range_m <= x]
+        _, reached = _reached(t, progress_frac[i], detect_range_m)
         for k in reached:
             kind, prev = arts[k][0], ("start" if k == 0 else arts[k - 1][0])
             cell = out[kind].setdefault(prev, [0, 0])
@@ -367,6 +373,72 @@ def failures_by_context(tracks, progress_frac, fell, fail_kind,
             cell[1] += int(k == reached[-1] and fell[i] > 0.5
                            and int(fail_kind[i]) == terrain.ARTIFACT_KINDS.index(kind))
     return out
+
+
+def switch_outcomes(tracks, switch_ahead_m, progress_frac, fell, fail_kind,
+                    detect_range_m: float | None = None) -> list[dict]:
+    """One record per switch into an artifact's policy: {"kind", "prev" (the artifact before it, or
+    "start"), "ahead_m" (CoM to its start when switched), "outcome": "fell" (the trial fell on
+    this artifact, as `failures_by_context` charges it), "crossed" (the CoM passed its end) or
+    "open" (time ran out first)}. Trials are `tracks` (terrain.Track, trial order)."""
+    if detect_range_m is None:
+        detect_range_m = float(default_env_config().detect_range_m)
+    out = []
+    for i, t in enumerate(tracks):
+        arts = t.artifacts
+        x, reached = _reached(t, progress_frac[i], detect_range_m)
+        last = reached[-1] if reached else -1
+        for k, (kind, _, a1) in enumerate(arts):
+            ahead = float(switch_ahead_m[i][k])
+            if np.isnan(ahead):
+                continue
+            fell_here = (k == last and fell[i] > 0.5
+                         and int(fail_kind[i]) == terrain.ARTIFACT_KINDS.index(kind))
+            out.append({"kind": kind, "prev": "start" if k == 0 else arts[k - 1][0],
+                        "ahead_m": ahead,
+                        "outcome": "fell" if fell_here else ("crossed" if x > a1 else "open")})
+    return out
+
+
+def switch_summary(records: list[dict], forced_m: float = 0.01) -> dict:
+    """{kind: {prev: {"n", "ahead_m_q" (quartiles [m]), "forced_pct" (switched within
+    `forced_m`: the rule never fired), "lost_pct" (fell on it), "lost_by_ahead": [[bin lo, bin hi,
+    n, fell], ...] (0.1 m bins)}}."""
+    out = {}
+    for kind in terrain.ARTIFACT_KINDS:
+        for prev in sorted({r["prev"] for r in records if r["kind"] == kind},
+                           key=lambda q: (q != "start", q)):
+            rs = [r for r in records if r["kind"] == kind and r["prev"] == prev]
+            ahead = np.array([r["ahead_m"] for r in rs])
+            lost = np.array([r["outcome"] == "fell" for r in rs])
+            edges = np.round(np.arange(0.0, 1.0, 0.1), 2)
+            # the first bin takes the forced switches a step past the start too (ahead < 0)
+            bins = [[float(lo), round(float(lo) + 0.1, 2), int(m.sum()), int(lost[m].sum())]
+                    for lo in edges for m in [((ahead >= lo) | (lo == 0)) & (ahead < lo + 0.1)]
+                    if m.any()]
+            out.setdefault(kind, {})[prev] = {
+                "n": len(rs), "ahead_m_q": [float(q) for q in np.quantile(ahead, (0.25, 0.5, 0.75))],
+                "forced_pct": float(100 * np.mean(ahead <= forced_m)),
+                "lost_pct": float(100 * lost.mean()), "lost_by_ahead": bins}
+    return out
+
+
+def switches_markdown(by_method: dict) -> str:
+    """One table per artifact kind: where each method switched into its policy, by the artifact
+    before it, and how often that artifact was then lost."""
+    lines = []
+    for kind in terrain.ARTIFACT_KINDS:
+        lines += [f"**into {kind}**: switch distance before it, median (quartiles) [m]; % forced "
+                  f"(within 1 cm); % lost (fell on it)", "",
+                  "| method | after | switches | distance [m] | % forced | % lost |",
+                  "|---|---|---|---|---|---|"]
+        for m, d in by_method.items():
+            for prev, c in d.get(kind, {}).items():
+                q1, q2, q3 = c["ahead_m_q"]
+                lines.append(f"| {m} | {prev} | {c['n']:,} | {q2:.2f} ({q1:.2f}-{q3:.2f}) | "
+                             f"{c['forced_pct']:.1f} | {c['lost_pct']:.1f} |")
+        lines.append("")
+    return "\n".join(lines)
 
 
 def failures_markdown(by_method: dict) -> str:

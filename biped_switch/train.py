@@ -63,13 +63,16 @@ def milestone_rollout(env, act, rng, eval_cfg, levels) -> dict:
 
 
 def fell_where(ev: dict) -> str:
-    """" (gaps 0.20, flat 0.05)": where the milestone episodes fell, for a stalled curriculum;
-    with more than one kind on the tracks (`mixed`) also " met jumps 0.90, gaps 0.80, ...": the
-    shares of episodes that reached each kind's detection zone."""
+    """" (gaps 0.20, flat 0.05)": where the milestone episodes fell, for a stalled curriculum."""
     fell = [f"{k.split('/')[1]} {v:.2f}" for k, v in ev.items() if k.startswith("fell_at/") and v > 0]
+    return f" ({', '.join(fell)})" if fell else ""
+
+
+def kinds_met(ev: dict) -> str:
+    """"; met jumps 0.90, gaps 0.80, stairs 0.70": with more than one kind on the tracks
+    (`mixed`), the shares of episodes that reached each kind's detection zone."""
     met = [f"{k} {ev[f'met_{k}']:.2f}" for k in ARTIFACT_KINDS if ev.get(f"met_{k}", 0.0) > 0]
-    return (f" ({', '.join(fell)})" if fell else "") + (f"; met {', '.join(met)}" if len(met) > 1
-                                                         else "")
+    return f"; met {', '.join(met)}" if len(met) > 1 else ""
 
 
 def restore(ckpt: pathlib.Path, template: "ppo.TrainState"):
@@ -232,7 +235,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         print_fn(f"[{cfg.policy}/{cfg.init}] chunk done at step {step:,}: eval reward/step "
                  f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}{fell_where(ev)}, success "
                  f"{ev['success']:.2f}, "
-                 f"distance {ev['distance_m']:.2f} m; curriculum {cs.as_dict()['stage_name']} "
+                 f"distance {ev['distance_m']:.2f} m{kinds_met(ev)}; curriculum "
+                 f"{cs.as_dict()['stage_name']} "
                  f"d={float(cs.difficulty):.2f} -> {new_cs.as_dict()['stage_name']} "
                  f"d={float(new_cs.difficulty):.2f} guide={float(new_cs.guide_scale):.2f} "
                  f"push={float(new_cs.push_scale):.2f}{strike}; saved {path}")

@@ -455,3 +455,22 @@ def test_failures_by_context_by_hand():
     assert out["stairs"] == {"gaps": [1, 0]}
     md = table2.failures_markdown({"m": out})
     assert "| m | 0 / 1 (0.0%) | 2 / 2 (100.0%) |" in md  # "after start" first
+
+    # the same four trials with their switches logged (slot per artifact, NaN: no switch)
+    nan = np.nan
+    ahead = np.array([[0.85, 0.40], [0.89, 0.005], [nan, nan], [0.70, 0.60]])
+    recs = table2.switch_outcomes(tracks, ahead, progress, fell, fail_kind)
+    assert [(r["kind"], r["prev"], r["ahead_m"], r["outcome"]) for r in recs] == [
+        ("jumps", "start", 0.85, "crossed"), ("gaps", "jumps", 0.40, "fell"),
+        ("gaps", "start", 0.89, "crossed"), ("stairs", "gaps", 0.005, "crossed"),
+        ("jumps", "start", 0.70, "crossed"), ("gaps", "jumps", 0.60, "fell")]
+    summ = table2.switch_summary(recs)
+    g = summ["gaps"]["jumps"]
+    assert g["n"] == 2 and g["lost_pct"] == 100.0 and g["forced_pct"] == 0.0
+    assert g["ahead_m_q"] == pytest.approx([0.45, 0.50, 0.55])
+    assert g["lost_by_ahead"] == [[0.4, 0.5, 1, 1], [0.6, 0.7, 1, 1]]
+    assert summ["stairs"]["gaps"]["forced_pct"] == 100.0  # 5 mm: within the forced 1 cm
+    assert summ["stairs"]["gaps"]["lost_by_ahead"] == [[0.0, 0.1, 1, 0]]
+    assert summ["jumps"]["start"]["lost_pct"] == 0.0 and list(summ["gaps"]) == ["start", "jumps"]
+    md = table2.switches_markdown({"m": summ})
+    assert "| m | jumps | 2 | 0.50 (0.45-0.55) | 0.0 | 100.0 |" in md

@@ -115,6 +115,11 @@ def test_chunked_rollout_matches_per_step_trace(multi_fn, trace_fn, method):
         rec = jax.device_get(trace_fn(rules, jax.random.split(k_reset, B)[b], jnp.int32(TRACK_IDS[b])))
         live = rec["ended"] < 0.5
         assert int(out["n_switches"][b]) == int(rec["switched"][live].sum())
+        # the logged switch distances, slot by slot (slots sorted by x, so in time order), are the
+        # detector's distances at the traced switch steps
+        ahead = out["switch_ahead_m"][b]
+        np.testing.assert_allclose(ahead[~np.isnan(ahead)],
+                                   rec["det_dist_m"][(rec["switched"] > 0) & live], atol=1e-5)
         assert out["length"][b] == pytest.approx(live.sum())
         assert out["fell"][b] == pytest.approx(rec["fell"][live].max())
         if method == "detection":  # every switch at the first step that sees a new artifact
