@@ -128,6 +128,8 @@ def main(argv=None) -> int:
                           ("--lookup", "experiments/results/lookup"),
                           ("--out", "experiments/results/table2")):
         w.add_argument(flag, default=default)
+    w.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
+    w.add_argument("--n-artifacts", type=int, default=7, help="artifacts per track (paper: 7)")
     w.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
     a = p.parse_args(argv)
     if a.cmd == "switches":
@@ -252,17 +254,18 @@ def _main_failures(out: pathlib.Path) -> int:
 
 
 def _main_switches(a, p) -> int:
-    """Table II's rollouts (60 s, 7 artifacts, the same first `--trials` tracks and seeds) with
-    every switch logged: its distance before the artifact and whether that artifact was lost."""
-    if a.trials < 1 or a.batch < 1:
-        p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
+    """Table II's rollouts (the same first `--trials` tracks and seeds) with every switch logged:
+    its distance before the artifact and whether that artifact was lost."""
+    if a.trials < 1 or a.batch < 1 or a.n_artifacts < 1 or not a.horizon_s > 0:
+        p.error(f"--trials, --batch and --n-artifacts must be >= 1 and --horizon-s > 0 (got "
+                f"{a.trials}, {a.batch}, {a.n_artifacts}, {a.horizon_s})")
     methods, skipped = available_methods(a.methods, a.runs, a.estimators, a.lookup)
     for sk in skipped:
         print(f"skipped {sk}", file=sys.stderr)
     if not methods:
         return 1
-    t0, per_trial, n_art = time.perf_counter(), {}, 7
-    evaluate_multi(methods, a.trials, min(a.batch, a.trials), 60.0, a.seed, a.runs, None,
+    t0, per_trial, n_art = time.perf_counter(), {}, a.n_artifacts
+    evaluate_multi(methods, a.trials, min(a.batch, a.trials), a.horizon_s, a.seed, a.runs, None,
                    a.estimators, a.lookup, print_fn=lambda *s: print(*s, flush=True),
                    n_artifacts=n_art, backend=a.backend, per_trial=per_trial)
     tracks = [mixed_track(MULTI_TRACK_SEED + i, n_art) for i in range(a.trials)]
@@ -277,7 +280,7 @@ def _main_switches(a, p) -> int:
     wall = time.perf_counter() - t0
     (out / "switch_distances.json").write_text(json.dumps(
         {"settings": {"trials": a.trials, "batch": min(a.batch, a.trials), "seed": a.seed,
-                      "horizon_s": 60.0, "n_artifacts": n_art, "track_seed": MULTI_TRACK_SEED,
+                      "horizon_s": a.horizon_s, "n_artifacts": n_art, "track_seed": MULTI_TRACK_SEED,
                       "backend": a.backend, "methods": methods},
          "wall_s": wall, "by_method": by_method}, indent=1))
     plot_switch_distances(by_method, out / "switch_distances_gaps.png", "gaps")

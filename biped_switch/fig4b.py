@@ -83,14 +83,12 @@ def lookup_provenance(doc: dict, path, print_fn=print) -> list[str]:
     return prov.conclude(doc, reasons, print_fn=print_fn)
 
 
-def plot_switch_distances(by_method: dict, path, kind: str = "gaps") -> None:
+def plot_switch_distances(by_method: dict, path=None, kind: str = "gaps"):
     """Where Table II's rules switched into `kind`'s policy (`table2.switch_summary` per method),
     one panel per artifact before it: the share of switches per 0.1 m of distance (lines) and the
-    share of those that then fell on the artifact (dots, right axis), against Fig. 4b's axis."""
-    import matplotlib  # lazy: only the figure needs it
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    share of those that then fell on the artifact (dots, right axis), against Fig. 4b's axis.
+    Saved to `path` and closed, or (no path: a notebook) returned."""
+    import matplotlib.pyplot as plt  # lazy: only the figure needs it
 
     prevs = list(dict.fromkeys(p for d in by_method.values() for p in d.get(kind, {})))
     fig, axes = plt.subplots(1, max(len(prevs), 1), figsize=(4.6 * max(len(prevs), 1), 3.4),
@@ -114,5 +112,8 @@ def plot_switch_distances(by_method: dict, path, kind: str = "gaps") -> None:
         lost_ax.set_ylim(-2, 102)
         ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
+    if path is None:
+        return fig
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return None

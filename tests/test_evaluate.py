@@ -14,6 +14,7 @@ from biped_switch import stats
 from biped_switch import table1
 from biped_switch import table2
 from biped_switch import table3
+from biped_switch import terrain
 
 
 def test_wilson_interval_hand_values():
@@ -474,3 +475,47 @@ def test_failures_by_context_by_hand():
     assert summ["jumps"]["start"]["lost_pct"] == 0.0 and list(summ["gaps"]) == ["start", "jumps"]
     md = table2.switches_markdown({"m": summ})
     assert "| m | jumps | 2 | 0.50 (0.45-0.55) | 0.0 | 100.0 |" in md
+
+
+def test_switches_cli_writes_the_summary_of_its_rollouts(tmp_path, monkeypatch, capsys):
+    """`evaluate switches` on a faked rollout of 2 trials: trial 0 switches into its first
+    artifact 0.8 m out and falls on it; trial 1 switches into its first two at 0.5 and 0.3 m and
+    finishes. The JSON, Markdown and figure hold exactly those switches; bad flags are refused
+    naming their values, before any rollout."""
+    tracks = [table2.mixed_track(config.MULTI_TRACK_SEED + i, 7) for i in range(2)]
+    kinds = terrain.ARTIFACT_KINDS
+    first = tracks[0].artifacts[0]
+    ahead = np.full((2, 7), np.nan)
+    ahead[0, 0], ahead[1, :2] = 0.8, [0.5, 0.3]
+    calls = []
+
+    def fake_multi(methods, trials, batch, horizon_s, *args, per_trial=None, n_artifacts=7, **kw):
+        calls.append((list(methods), trials, batch, horizon_s, n_artifacts))
+        for m in methods:
+            per_trial[m] = {"switch_ahead_m": ahead, "fell": np.array([1.0, 0.0]),
+                            "fail_kind": np.array([kinds.index(first[0]), -1]),
+                            "progress_frac": np.array([(first[1] + 0.2) / tracks[0].finish_x_m, 1.0])}
+        return [], {}
+
+    monkeypatch.setattr(ev, "evaluate_multi", fake_multi)
+    monkeypatch.setattr(ev, "available_methods", lambda methods, *a, **k: (list(methods), []))
+    for bad, text in ((["--trials", "0"], "got 0, 250, 7, 60.0"), (["--horizon-s", "-1"], "-1.0")):
+        with pytest.raises(SystemExit):
+            ev.main(["switches", "--out", str(tmp_path), *bad])
+        assert text in capsys.readouterr().err
+    assert not calls
+    assert ev.main(["switches", "--trials", "2", "--methods", "lookup", "--out", str(tmp_path)]) == 0
+    assert calls == [(["lookup"], 2, 2, 60.0, 7)]
+    doc = json.loads((tmp_path / "switch_distances.json").read_text())
+    assert doc["settings"]["trials"] == 2 and doc["settings"]["methods"] == ["lookup"]
+    by = doc["by_method"]["lookup"]
+    k0, k1 = tracks[0].artifacts[0][0], tracks[1].artifacts[0][0]
+    got = {(k, prev): (c["n"], c["lost_pct"]) for k, d in by.items() for prev, c in d.items()}
+    want = {}
+    for (kind, prev), lost in (((k0, "start"), 100.0), ((k1, "start"), 0.0),
+                               ((tracks[1].artifacts[1][0], k1), 0.0)):
+        n, l0 = want.get((kind, prev), (0, 0.0))
+        want[(kind, prev)] = (n + 1, (l0 * n + lost) / (n + 1))
+    assert got == want
+    assert (tmp_path / "switch_distances_gaps.png").stat().st_size > 5_000
+    assert "| lookup | start |" in (tmp_path / "switch_distances.md").read_text()
