@@ -93,6 +93,7 @@ def plot_switch_distances(by_method: dict, path=None, kind: str = "gaps"):
     prevs = list(dict.fromkeys(p for d in by_method.values() for p in d.get(kind, {})))
     fig, axes = plt.subplots(1, max(len(prevs), 1), figsize=(4.6 * max(len(prevs), 1), 3.4),
                              squeeze=False)
+    width = 0.1 / max(len(by_method), 1)
     for ax, prev in zip(axes[0], prevs):
         lost_ax = ax.twinx()
         for i, (m, d) in enumerate(by_method.items()):
@@ -100,17 +101,20 @@ def plot_switch_distances(by_method: dict, path=None, kind: str = "gaps"):
             if not c:
                 continue
             b = np.array(c["lost_by_ahead"], float).reshape(-1, 4)
-            mid = 0.5 * (b[:, 0] + b[:, 1])
+            x = b[:, 0] + (i + 0.5) * width  # side by side within each 0.1 m bin
             color = f"C{i}"
-            ax.plot(mid, b[:, 2] / c["n"], "-", color=color,
-                    label=f"{m} (n {c['n']:,}, lost {c['lost_pct']:.0f}%)")
-            lost_ax.plot(mid, 100 * b[:, 3] / np.maximum(b[:, 2], 1), "o", color=color, ms=4)
+            ax.bar(x, b[:, 2] / c["n"], width=width, color=color, alpha=0.45,
+                   label=f"{m} (n {c['n']:,}, lost {c['lost_pct']:.0f}%)")
+            lost_ax.plot(x, 100 * b[:, 3] / np.maximum(b[:, 2], 1), "D", color=color, ms=5,
+                         mec="k", mew=0.5)
         ax.set_title(f"into {kind}, after {prev}")
-        ax.set_xlabel("switch distance before the artifact [m]")
-        ax.set_ylabel("share of switches")
-        lost_ax.set_ylabel("% of them lost (dots)")
+        ax.set_xlabel("switch distance before the artifact [m] (0.1 m bins)")
+        ax.set_ylabel("share of switches (bars)")
+        ax.set_xlim(0.0, 1.0)
+        ax.set_ylim(0.0, 1.05)
+        lost_ax.set_ylabel("% of them lost (diamonds)")
         lost_ax.set_ylim(-2, 102)
-        ax.legend(fontsize=7, loc="upper left")
+        ax.legend(fontsize=7, loc="upper center")
     fig.tight_layout()
     if path is None:
         return fig
