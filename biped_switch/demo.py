@@ -128,7 +128,7 @@ def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
 def _in_training(runs) -> list[str]:
     """'<policy>: <why>' for each found stand-init policy whose run is not finished, the
     end-to-end `mixed` one included (`runs.run_notes`: short of its step goal is not counted, an
-    unfinished curriculum is)."""
+    unfinished curriculum is), and for the DQN selector short of its step goal."""
     out = []
     for n in pol.POLICY_NAMES + ("mixed",):
         ckpt = runs_lib.find_policy(n, "stand", pathlib.Path(runs))
@@ -137,6 +137,9 @@ def _in_training(runs) -> list[str]:
         notes = runs_lib.run_notes(ckpt.parent.parent, step_goal=False)
         if notes:
             out.append(f"{n}: {'; '.join(notes)}")
+    dqn_dir = runs_lib.find_dqn(runs, "stand")  # a selector has no curriculum: its step goal counts
+    if dqn_dir is not None and (notes := runs_lib.run_notes(dqn_dir)):
+        out.append(f"dqn selector: {'; '.join(notes)}")
     return out
 
 

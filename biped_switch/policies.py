@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from biped_switch import ppo
 from biped_switch import runs as runs_lib
 from biped_switch import terrain
+from biped_switch.provenance import rel
 
 POLICY_NAMES = ("walk",) + terrain.ARTIFACT_KINDS  # ("walk", "jumps", "gaps", "stairs")
 POLICY_INDEX = {n: i for i, n in enumerate(POLICY_NAMES)}
@@ -163,7 +164,9 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
                              f"{type(tree).__name__} without params/norm: Brax's format?)")
         # the deterministic action needs the policy network and the normaliser only
         params.append({"params": {"policy": tree["params"]["policy"]}, "norm": tree["norm"]})
-        src = f"{ckpt} (step {prog['step']:,}, curriculum {prog['curriculum']['stage_name']})"
+        # repo-relative, so a record (a DQN's progress.json, a results file) names the same
+        # checkpoint however the runs folder was given and on whichever machine
+        src = f"{rel(ckpt)} (step {prog['step']:,}, curriculum {prog['curriculum']['stage_name']})"
         if ckpt.parent.parent.name != f"{n}_{init}":
             src = f"stand-in for {n}: {src}"
             print(f"WARNING: no {init}-init {n} policy; using {stand_in} in its place", file=sys.stderr)

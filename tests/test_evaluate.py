@@ -148,8 +148,10 @@ def _fake_run(run_dir, wall_s, device="cuda:0", step=1000, **extra):
 
 def test_retrain_cost_from_logs(tmp_path, monkeypatch):
     runs, res = tmp_path / "runs", tmp_path / "results"
-    # only these fake runs: not the committed ones (models/policies/mixed_stand, ...)
+    # only these fake runs: not the committed ones (models/policies/mixed_stand,
+    # models/baselines/dqn_stand, ...)
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
+    monkeypatch.setattr(runs_lib, "BASELINE_DIR", tmp_path / "baselines")
     _fake_run(runs / "jumps_stand", 1800.0)
     _fake_run(runs / "gaps_stand", 3600.0)
     _fake_run(runs / "stairs_stand", 5400.0)  # mean policy: 1 h
@@ -205,7 +207,9 @@ def _fake_ckpt(run_dir, step=1):
 
 def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     # only these fakes count: not the policies committed under models/policies/ (walk_random is)
+    # nor the DQN under models/baselines/
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
+    monkeypatch.setattr(runs_lib, "BASELINE_DIR", tmp_path / "baselines")
     runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
     for n in ("walk", "jumps", "gaps", "stairs"):  # the stand suite
         _fake_ckpt(runs / f"{n}_stand")
@@ -267,8 +271,8 @@ def test_demo_horizon_lets_the_target_speed_finish():
 
 def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
     """A found policy (the end-to-end `mixed` one too) with an unfinished curriculum is named with
-    its stage; a finished one is not; a run short of its step goal alone is not flagged (the
-    curriculum decides)."""
+    its stage; a finished one is not; a policy's run short of its step goal alone is not flagged
+    (the curriculum decides), a DQN selector's is."""
     from biped_switch import demo
 
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
@@ -284,9 +288,16 @@ def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
     _fake_run(runs / "mixed_stand", 60.0, curriculum={  # the end-to-end policy is named too
         "stage": 0, "stage_name": "terrain", "difficulty": 0.6, "guide_scale": 1.0,
         "push_scale": 0.0}, curriculum_done=False)
-    assert demo._in_training(runs) == ["jumps: curriculum unfinished (guides d=1.0 guide=0.05)",
-                                       "stairs: push stage unfinished (push=0.5)",
-                                       "mixed: curriculum unfinished (terrain d=0.6 guide=1.0)"]
+    monkeypatch.setattr(runs_lib, "BASELINE_DIR", tmp_path / "baselines")  # no committed DQN
+    flagged = ["jumps: curriculum unfinished (guides d=1.0 guide=0.05)",
+               "stairs: push stage unfinished (push=0.5)",
+               "mixed: curriculum unfinished (terrain d=0.6 guide=1.0)"]
+    assert demo._in_training(runs) == flagged
+    # a DQN selector has no curriculum: short of its step goal, it is in training
+    _fake_run(runs / "dqn_stand", 60.0, step=256, total_env_steps=1000)
+    assert demo._in_training(runs) == flagged + ["dqn selector: at step 256 of 1,000"]
+    _fake_run(runs / "dqn_stand", 60.0, step=1000, total_env_steps=1000)
+    assert demo._in_training(runs) == flagged
 
 
 def test_demo_runs_end_to_end_on_the_trained_suite(tmp_path, monkeypatch, capsys):
