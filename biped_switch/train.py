@@ -68,7 +68,7 @@ def fell_where(ev: dict) -> str:
     return f" ({', '.join(fell)})" if fell else ""
 
 
-def kinds_met(ev: dict) -> str:
+def met_text(ev: dict) -> str:
     """"; met jumps 0.90, gaps 0.80, stairs 0.70": with more than one kind on the tracks
     (`mixed`), the shares of episodes that reached each kind's detection zone."""
     met = [f"{k} {ev[f'met_{k}']:.2f}" for k in ARTIFACT_KINDS if ev.get(f"met_{k}", 0.0) > 0]
@@ -235,7 +235,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         print_fn(f"[{cfg.policy}/{cfg.init}] chunk done at step {step:,}: eval reward/step "
                  f"{ev['reward_per_step']:.2f}, fell {ev['fell']:.2f}{fell_where(ev)}, success "
                  f"{ev['success']:.2f}, "
-                 f"distance {ev['distance_m']:.2f} m{kinds_met(ev)}; curriculum "
+                 f"distance {ev['distance_m']:.2f} m{met_text(ev)}; curriculum "
                  f"{cs.as_dict()['stage_name']} "
                  f"d={float(cs.difficulty):.2f} -> {new_cs.as_dict()['stage_name']} "
                  f"d={float(new_cs.difficulty):.2f} guide={float(new_cs.guide_scale):.2f} "

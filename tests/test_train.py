@@ -40,9 +40,9 @@ def test_summary_splits_falls_by_kind_and_names_them():
     assert (s["fell_at/jumps"], s["fell_at/gaps"], s["fell_at/stairs"], s["fell_at/flat"]) == (
         0.0, 0.5, 0.0, 0.25)
     assert train_lib.fell_where(s) == " (gaps 0.50, flat 0.25)"
-    assert train_lib.kinds_met(s) == "; met jumps 0.25, gaps 0.75, stairs 0.50"
+    assert train_lib.met_text(s) == "; met jumps 0.25, gaps 0.75, stairs 0.50"
     one_kind = {**s, "met_jumps": 0.0, "met_stairs": 0.0, "fell_at/flat": 0.0}
-    assert train_lib.fell_where(one_kind) == " (gaps 0.50)" and train_lib.kinds_met(one_kind) == ""
+    assert train_lib.fell_where(one_kind) == " (gaps 0.50)" and train_lib.met_text(one_kind) == ""
 
 
 def test_normalizer_matches_numpy_over_all_batches():
