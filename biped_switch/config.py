@@ -234,11 +234,12 @@ def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
         oracle_bonus=1.0,  # per step, for choosing the detected artifact's policy (walk if none)
         norm_std_floor=1e-2,
         network=config_dict.create(hm_hidden=(128, 64), hidden=(256, 256)),  # as the policies
+        eval_envs=64,  # greedy episodes after each chunk (fixed training tracks; 0: none)
     )
     if preset == "cpu":
         cfg.update(num_envs=64, total_env_steps=10_000_000, chunk_env_steps=256_000,
                    log_every=200, replay_capacity=300_000, batch_size=256, learning_starts=50_000,
-                   updates_per_collect=1)  # a target sync every 1,000 updates = 64k env steps
+                   updates_per_collect=1, eval_envs=16)  # a target sync every 64k env steps
         cfg.epsilon.decay_steps = 2_000_000
     elif preset != "gpu":
         raise ValueError(f"unknown preset {preset!r}; expected 'gpu' or 'cpu'")

@@ -50,6 +50,12 @@ columns as float32, the heightmap, phase clock and one-hot as float16 (heightmap
 [0, 1], the clock's in [-1, 1]; float16 keeps them to 5e-4), about 5 kB per observation and
 10 kB per transition (obs and next obs): the GPU preset's 500,000 transitions take about 5 GB.
 
+Greedy evaluation: after each chunk the greedy selector (no epsilon) runs `eval_envs` episodes of
+`max_episode_s` on fixed training tracks spread over the bank, the same starts every time
+(`greedy_eval`, `dqn_rollout`); their mean success, progress, falls and switches go to the progress
+line, `metrics.csv` (`eval_*`), progress.json (`eval`) and the fourth panel of `curves.png`. Its
+time counts in the chunk's (`wall_s`, `env_steps_per_s`), as PPO's milestone rollout does.
+
 Checkpoints: every `chunk_env_steps` env steps, an Orbax checkpoint `checkpoints/<step>/` of the
 online and target params and the optimiser state, with `progress.json` (step, `total_env_steps`:
 the target this session was asked to reach, so step < total_env_steps marks an unfinished run;
@@ -494,7 +500,18 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
         return ts, sums
 
     pool_size = cfg.reset_pool or env.bank.size
+    n_eval = int(cfg.get("eval_envs", 0))
+    eval_ids = jnp.asarray((np.arange(n_eval) * env.bank.size) // max(n_eval, 1), jnp.int32)
+
+    @jax.jit
+    def greedy_eval(suite_params, q_params):
+        """The greedy selector on `eval_envs` fixed training tracks (spread over the bank, the
+        same starts every chunk), as `dqn_rollout` plays it: a learning curve free of epsilon."""
+        return dqn_rollout(env, suite_apply, suite_params, q_apply, q_params,
+                           jax.random.PRNGKey(cfg.seed + 2), n_eval, max_steps, track_ids=eval_ids)
+
     fns = types.SimpleNamespace(init=init, run=jax.jit(run, donate_argnums=0),
+                                greedy_eval=greedy_eval if n_eval > 0 else None,
                                 reset_pool=jax.jit(lambda key: reset_pool(env, key, pool_size)),
                                 q_apply=q_apply,
                                 q_init=q_init, optimizer=optimizer, max_steps=max_steps,
@@ -518,6 +535,15 @@ def summarize_run(sums: dict, iterations: int) -> dict:
             "detected_frac": s["detected"] / iterations, "epsilon": s["epsilon"]}
 
 
+def summarize_eval(ep: dict) -> dict:
+    """Means over the greedy episodes of `greedy_eval` (the `eval_` keys of metrics.csv)."""
+    ep = jax.device_get(ep)
+    return {"eval_success": float(np.mean(ep["success"])), "eval_fell": float(np.mean(ep["fell"])),
+            "eval_progress": float(np.mean(ep["progress_frac"])),
+            "eval_switches": float(np.mean(ep["n_switches"])),
+            "eval_episodes": int(np.size(ep["success"]))}
+
+
 def plot_curves(run_dir, out_png) -> None:
     """The DQN's learning curves (metrics.csv, one row per jitted call): episode return and
     success, the share of steps on the oracle's policy, and the TD loss, Q and epsilon."""
@@ -533,7 +559,8 @@ def plot_curves(run_dir, out_png) -> None:
     def series(key, src=rows):
         return runs_lib.curve_series(src, key)
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
+    eval_rows = [r for r in rows if r.get("eval_success") not in (None, "")]
+    fig, axes = plt.subplots(1, 4 if eval_rows else 3, figsize=(20 if eval_rows else 15, 3.6))
     for key, ax, style in (("episode_env_return", axes[0], "-"),
                            ("episode_success", axes[0].twinx(), "g:")):
         xy = series(key, ep_rows)
@@ -554,6 +581,15 @@ def plot_curves(run_dir, out_png) -> None:
     q_ax.plot(xy[:, 0], xy[:, 1], "r:", label="mean Q")
     q_ax.set_ylabel("mean Q", color="r")
     axes[2].set_title("learning")
+    if eval_rows:
+        n_ep = int(float(eval_rows[-1].get("eval_episodes") or 0))
+        for key in ("eval_success", "eval_progress", "eval_fell"):
+            xy = series(key, eval_rows)
+            axes[3].plot(xy[:, 0], xy[:, 1], "o-", ms=3, label=key.removeprefix("eval_"))
+        axes[3].set_ylim(-0.02, 1.02)
+        axes[3].set_xlim(axes[0].get_xlim())  # the same steps as the others (it may start late)
+        axes[3].legend(fontsize=8)
+        axes[3].set_title(f"greedy selector, {n_ep} fixed training tracks (each chunk)")
     runs_lib.save_curves(fig, axes, run_dir, out_png)
 
 
@@ -715,6 +751,14 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
                      f"left ~{left / 60:.1f} min")
             logger.log(step, {k: v for k, v in {**last, "steps_per_s": sps}.items()
                               if not (isinstance(v, float) and math.isnan(v))})
+        ev = {}
+        if fns.greedy_eval is not None:  # part of the chunk's time (as PPO's milestone rollout)
+            t_ev = time.perf_counter()
+            ev = summarize_eval(fns.greedy_eval(suite.params, ts.params))
+            print_fn(f"[dqn/{cfg.init}] greedy, {ev['eval_episodes']} training tracks: success "
+                     f"{ev['eval_success']:.2f}  progress {ev['eval_progress']:.2f}  fell "
+                     f"{ev['eval_fell']:.2f}  switches {ev['eval_switches']:.1f}  "
+                     f"({time.perf_counter() - t_ev:.0f} s)")
         chunk_s = time.perf_counter() - t_chunk
         wall_s += chunk_s + (setup_s if chunks == 0 else 0.0)
         if chunks == 0 and setup_total is not None:
@@ -724,7 +768,7 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
                     "chunk_s": chunk_s, "session_setup_s": setup_s if chunks == 0 else 0.0,
                     "setup_s_total": setup_total, "epsilon": last["epsilon"],
                     "n_updates": n_updates, "norm_ready": norm_ready,
-                    "env_steps_per_s": (step - step0) / chunk_s, "last": last,
+                    "env_steps_per_s": (step - step0) / chunk_s, "last": last, "eval": ev,
                     "hm_size": fns.hm_size, "q_input_size": fns.in_size, "init": cfg.init,
                     "stand_in": stand_in, "policies": list(suite.sources),
                     "env_overrides": dict(suite.env_overrides), "backend": env.backend,
@@ -734,7 +778,8 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
                 "target": jax.tree.map(np.asarray, jax.device_get(ts.target)),
                 "opt": _opt_to_dict(jax.device_get(ts.opt_state))}
         path = runs_lib.save_tree(run_dir, step, tree, progress)
-        logger.log(step, {"wall_s": wall_s, "chunk_env_steps_per_s": progress["env_steps_per_s"]})
+        logger.log(step, {"wall_s": wall_s, "chunk_env_steps_per_s": progress["env_steps_per_s"],
+                          **ev})
         print_fn(f"[dqn/{cfg.init}] chunk done at step {step:,} ({n_updates:,} updates, "
                  f"{chunk_s:.0f} s); saved {path}")
         chunks += 1

@@ -2,6 +2,7 @@
 collection step, rollout and the resumable trainer on a cheap scripted env, and one jitted
 collection + update call on the real MJX env (the only expensive compile of this file)."""
 
+import csv
 import functools
 import json
 import types
@@ -363,7 +364,7 @@ def _tiny_cfg(**kw):
     cfg = default_dqn_config("cpu")
     cfg.update(num_envs=4, log_every=5, chunk_env_steps=40, total_env_steps=120, learning_starts=20,
                replay_capacity=200, batch_size=16, updates_per_collect=1, target_update_period=4,
-               max_episode_s=0.2)
+               max_episode_s=0.2, eval_envs=3)
     cfg.epsilon.decay_steps = 10_000
     cfg.network.update(hm_hidden=(4,), hidden=(16,))
     cfg.update(**kw)
@@ -397,6 +398,12 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     last = p1["last"]  # iterations 6..10: every env finishes its episode (6 steps) at iteration 6
     assert np.isfinite(last["loss"]) and np.isfinite(last["q_mean"])
     assert last["episodes"] == 4 and last["episode_length"] == 6 and last["episode_success"] == 1
+    # the greedy evaluation after the chunk: 3 fixed tracks, each ends in success at step 6 (the
+    # fake env's finish), whatever the selector picks
+    assert p1["eval"] == {"eval_success": 1.0, "eval_fell": 0.0, "eval_progress": 1.0,
+                          "eval_switches": p1["eval"]["eval_switches"], "eval_episodes": 3}
+    assert 0 <= p1["eval"]["eval_switches"] <= 6
+    assert any("greedy, 3 training tracks: success 1.00" in ln for ln in lines)
     ckpt = tmp_path / "checkpoints" / f"{40:012d}"
     saved = json.loads((ckpt / "progress.json").read_text())
     assert saved["step"] == 40 and saved["total_env_steps"] == 120
@@ -419,6 +426,8 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     # a fresh run folder resumes from it
     out = runs_lib.commit_run(tmp_path, tmp_path / "committed" / "dqn_stand", dqn.plot_curves)
     assert [c.name for c in (out / "checkpoints").iterdir()] == [f"{120:012d}"]
+    with (out / "metrics.csv").open() as f:  # one greedy evaluation per chunk
+        assert [int(r["step"]) for r in csv.DictReader(f) if r.get("eval_success")] == [40, 80, 120]
     assert (out / "curves.png").stat().st_size > 10_000 and (out / "metrics.csv").exists()
     fresh = tmp_path / "fresh" / "dqn_stand"
     runs_lib.restore_committed(fresh, lines.append, tmp_path / "committed")
