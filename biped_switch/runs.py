@@ -334,7 +334,8 @@ def run_notes(run_dir, step_goal: bool = True) -> list[str]:
     (`step_goal` False: being short of the step goal is not a reason).
 
     It lies in a pipeline_check folder; its latest checkpoint is short of the step goal
-    (progress.json's total_steps / total_env_steps, else config.json's); its curriculum is
+    (progress.json's total_steps / total_env_steps, else config.json's) and its curriculum did
+    not finish (a PPO run stops when it does: `--total-steps` is then only a ceiling); its curriculum is
     unfinished (guide forces on or difficulty below 1: progress.json's, else the last logged in
     metrics.csv, for folders of copied logs); a DQN selector chose among stand-in policies.
     A curriculum that ended on a push plateau is finished (Table I's curriculum cell says so)."""
@@ -345,7 +346,9 @@ def run_notes(run_dir, step_goal: bool = True) -> list[str]:
     cfg = read_config(d)
     total = next((v for v in (prog.get("total_steps"), prog.get("total_env_steps"),
                               cfg.get("total_timesteps"), cfg.get("total_env_steps")) if v), None)
-    if step_goal and "step" in prog and total is not None and int(prog["step"]) < int(total):
+    finished = bool(prog.get("curriculum_done"))  # a PPO run stops there, short of its ceiling
+    if (step_goal and not finished and "step" in prog and total is not None
+            and int(prog["step"]) < int(total)):
         notes.append(f"at step {int(prog['step']):,} of {int(total):,}")
     c = prog.get("curriculum")
     if c is None and (d / "metrics.csv").is_file():
