@@ -57,8 +57,9 @@ from biped_switch.policies import POLICY_NAMES
 from biped_switch.runs import BASELINE_DIR, find_policy
 from biped_switch.table1 import HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, table1_markdown
 from biped_switch.fig4b import plot_switch_distances
-from biped_switch.table2 import (BASELINES, MULTI_METHODS, available_methods, evaluate_multi,
-                                 failures_by_context, failures_markdown, merge_rows, mixed_track,
+from biped_switch.table2 import (BASELINES, MULTI_METHODS, available_methods, claims_markdown,
+                                 evaluate_multi, failures_by_context, failures_markdown,
+                                 merge_rows, mixed_track, paper_claims,
                                  switch_outcomes, switch_summary, switches_markdown,
                                  table2_markdown, trial_track)
 from biped_switch.table3 import retrain_cost, table3_markdown
@@ -345,6 +346,9 @@ def _main_multi(a, p) -> int:
          "device": str(jax.devices()[0]), "backend": sorted({r["backend"] for r in rows}),
          "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
     save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
+    claims_md = claims_markdown(paper_claims(rows))  # the paper's claims on the whole table
+    (out / "claims.md").write_text(claims_md + "\n")
+    print(claims_md, flush=True)
     lock.close()
     # Fig. 5 of each stand-suite estimator method run now: fig5_trial<i>[<suffix>.png]
     for method in a.methods:

@@ -458,6 +458,75 @@ def failures_markdown(by_method: dict) -> str:
     return "\n".join(lines)
 
 
+HEURISTICS = ("random", "detection", "lookup", "com_over_feet")  # the paper's heuristic rows
+
+
+def compare(a: dict, b: dict, key: str = "success") -> int:
+    """+1 when row a's 95% CI on `key` ("success" or "distance") lies wholly above b's, -1 wholly
+    below, 0 when they overlap (no difference claimed)."""
+    (alo, ahi), (blo, bhi) = a[f"{key}_ci"], b[f"{key}_ci"]
+    return 1 if alo > bhi else (-1 if ahi < blo else 0)
+
+
+def _cell(r: dict, key: str = "success") -> str:
+    lo, hi = r[f"{key}_ci"]
+    return f"{r['method']} {r[f'{key}_pct']:.1f} ({lo:.1f}-{hi:.1f})"
+
+
+def paper_claims(rows: list[dict]) -> list[dict]:
+    """The paper's four Table II claims, tested on our rows by their 95% CIs on % success
+    (`compare`): {claim, verdict, evidence}. verdict: "holds", "fails" (with the rows that break
+    it) or "not tested" (a row it needs was not run). "Comparable" means overlapping CIs."""
+    by = {r["method"]: r for r in rows}
+    out = []
+
+    def add(claim, verdict, evidence):
+        out.append({"claim": claim, "verdict": verdict, "evidence": evidence})
+
+    claim = "the estimator beats every heuristic (success)"
+    need = ("estimator", *HEURISTICS)
+    if all(m in by for m in need):
+        est = by["estimator"]
+        lost = [h for h in HEURISTICS if compare(est, by[h]) < 1]
+        add(claim, "fails" if lost else "holds",
+            f"{_cell(est)}; " + "; ".join(_cell(by[h]) for h in HEURISTICS)
+            + (f"; not beaten: {', '.join(lost)}" if lost else ""))
+    else:
+        add(claim, "not tested", "missing rows: " + ", ".join(m for m in need if m not in by))
+    claim = "without overlap the estimator collapses (success)"
+    if "estimator" in by and "estimator_no_overlap" in by:
+        no, est = by["estimator_no_overlap"], by["estimator"]
+        add(claim, "holds" if compare(no, est) < 0 else "fails", f"{_cell(no)}; {_cell(est)}")
+    else:
+        add(claim, "not tested", "missing rows: " + ", ".join(
+            m for m in ("estimator", "estimator_no_overlap") if m not in by))
+    claim = "the DQN is comparable to the estimator (overlapping success CIs)"
+    if "dqn" in by and "estimator" in by:
+        c = compare(by["dqn"], by["estimator"])
+        add(claim, "holds" if c == 0 else "fails",
+            f"{_cell(by['dqn'])}; {_cell(by['estimator'])}"
+            + ("" if c == 0 else f"; the DQN is {'better' if c > 0 else 'worse'}"))
+    else:
+        add(claim, "not tested", "missing rows: " + ", ".join(
+            m for m in ("dqn", "estimator") if m not in by))
+    claim = "end-to-end is best (success)"
+    if "end_to_end" in by and len(by) > 1:
+        e2e = by["end_to_end"]
+        rivals = [m for m in by if m != "end_to_end" and compare(e2e, by[m]) < 1]
+        add(claim, "fails" if rivals else "holds", f"{_cell(e2e)}"
+            + (f"; not beaten: " + "; ".join(_cell(by[m]) for m in rivals) if rivals else
+               f"; above all {len(by) - 1} other rows"))
+    else:
+        add(claim, "not tested", "missing rows: end_to_end")
+    return out
+
+
+def claims_markdown(claims: list[dict]) -> str:
+    lines = ["| the paper's claim | on our system | evidence: % success (95% CI) |", "|---|---|---|"]
+    lines += [f"| {c['claim']} | {c['verdict']} | {c['evidence']} |" for c in claims]
+    return "\n".join(lines)
+
+
 def table2_markdown(rows: list[dict]) -> str:
     lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail (CI) | "
              "% jump fail (CI) | % stair fail (CI) | paper (dist. / success / gap / jump / stair) |",

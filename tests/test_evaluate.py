@@ -381,6 +381,8 @@ def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
             "estimator/success": [1.0, 1.0]}
     md = (out / "table2.md").read_text()
     assert md.index("| random |") < md.index("| detection |") < md.index("| estimator |")
+    claims = (out / "claims.md").read_text()  # on the merged table: every row, both runs'
+    assert "| the estimator beats every heuristic (success) | not tested | missing rows: lookup" in claims
     with pytest.raises(SystemExit):
         ev.main(["multi", "--trials", "3", "--batch", "2", "--methods", "lookup", "--out", str(out)])
     assert len(calls) == 2  # refused before rolling out
@@ -390,6 +392,41 @@ def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
     assert [r["method"] for r in json.loads((out / "table2.json").read_text())["rows"]] == ["lookup"]
     with np.load(out / "table2_trials.npz") as z:
         assert z.files == ["lookup/success"]
+
+
+def _ci_row(method, pct, lo, hi):
+    return {"method": method, "success_pct": pct, "success_ci": [lo, hi]}
+
+
+def test_paper_claims_by_hand():
+    """Each claim by the 95% CIs on % success: disjoint above = better, overlap = comparable; a
+    claim whose rows were not run is "not tested", naming them."""
+    assert table2.compare(_ci_row("a", 50, 45, 55), _ci_row("b", 40, 35, 44.9)) == 1
+    assert table2.compare(_ci_row("a", 50, 45, 55), _ci_row("b", 40, 35, 45.0)) == 0  # touching
+    assert table2.compare(_ci_row("a", 30, 25, 34), _ci_row("b", 40, 35, 45)) == -1
+    heur = [_ci_row("random", 10, 9, 11), _ci_row("detection", 60, 58, 62),
+            _ci_row("lookup", 59, 57, 61), _ci_row("com_over_feet", 66, 64, 68)]
+    rows = heur + [_ci_row("estimator", 71, 69, 73), _ci_row("estimator_no_overlap", 1, 0, 2),
+                   _ci_row("dqn", 72, 70, 74), _ci_row("end_to_end", 90, 89, 91)]
+    got = {c["claim"].split(" (")[0]: c for c in table2.paper_claims(rows)}  # the paper's table
+    assert [c["verdict"] for c in got.values()] == ["holds"] * 4
+    assert "above all 7 other rows" in got["end-to-end is best"]["evidence"]
+    rows[3] = _ci_row("com_over_feet", 70, 68, 72)  # overlaps the estimator: not beaten
+    rows[6] = _ci_row("dqn", 80, 78, 82)
+    rows.append(_ci_row("lookup_context", 90, 88.5, 91.5))  # ties end-to-end
+    got = {c["claim"].split(" (")[0]: c for c in table2.paper_claims(rows)}
+    beats = got["the estimator beats every heuristic"]
+    assert beats["verdict"] == "fails" and beats["evidence"].endswith("not beaten: com_over_feet")
+    assert got["the DQN is comparable to the estimator"]["verdict"] == "fails"
+    assert got["the DQN is comparable to the estimator"]["evidence"].endswith("the DQN is better")
+    e2e = got["end-to-end is best"]
+    assert e2e["verdict"] == "fails" and "not beaten: lookup_context 90.0 (88.5-91.5)" in e2e["evidence"]
+    assert got["without overlap the estimator collapses"]["verdict"] == "holds"
+    part = table2.paper_claims(heur + [_ci_row("estimator", 71, 69, 73)])
+    assert [c["verdict"] for c in part] == ["holds", "not tested", "not tested", "not tested"]
+    assert part[1]["evidence"] == "missing rows: estimator_no_overlap"
+    md = table2.claims_markdown(part)
+    assert md.count("\n") == 5 and "| the DQN is comparable" in md
 
 
 def test_run_batches_covers_each_trial_once_and_reports_progress():
