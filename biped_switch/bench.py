@@ -12,7 +12,9 @@ device and the versions.
 
 Times PPO training (ppo.py) with collection and updates together, at the CPU preset (256 envs x 32
 steps per iteration, 4 epochs of 4 minibatches): compile_s once, then env_steps_per_s over
-`--iterations` timed iterations, with the time split into collection and update phases.
+`--iterations` timed iterations, with the time split into collection and update phases, and
+cpu_s_per_1k_env_steps (the process's CPU time, all threads: on a CPU shared with other runs
+the figure that compares settings, as wall speed depends on each process's share).
 `--encoding mlp` measures the paper-sized heightmap encoder (2,400 -> 128 -> 64) against the lean
 default (`pool`: 150 pooled values); `--backend mjx` the same trainer on MJX.
 
@@ -125,11 +127,12 @@ def run_train(backend: str = "auto", kind: str = "walk", iterations: int = 5, pr
     t0 = time.perf_counter()
     ts, envs, m = jax.block_until_ready(trainer.iteration(ts, envs, jax.random.PRNGKey(seed + 2), curr))
     compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     for i in range(iterations):
         ts, envs, m = trainer.iteration(ts, envs, jax.random.PRNGKey(seed + 3 + i), curr)
     jax.block_until_ready(m)
     it_s = (time.perf_counter() - t0) / iterations
+    cpu_s = time.process_time() - cpu0  # all threads' CPU time: the fair figure on a shared CPU
     p = cfg.ppo
     dev = jax.devices()[0]
     return {
@@ -140,6 +143,7 @@ def run_train(backend: str = "auto", kind: str = "walk", iterations: int = 5, pr
         "compile_s": round(compile_s, 2), "iteration_s": round(it_s, 3),
         "iterations_timed": iterations,
         "env_steps_per_s": round(trainer.steps_per_iteration / it_s, 1),
+        "cpu_s_per_1k_env_steps": round(1000 * cpu_s / (iterations * trainer.steps_per_iteration), 4),
         "device": f"{dev.platform}:{getattr(dev, 'device_kind', '')}", "n_devices": 1,
         "cpu_count": __import__("os").cpu_count(), "jax": jax.__version__,
         "python": platform.python_version(),
