@@ -35,12 +35,13 @@ def mean_ci(x: np.ndarray, z: float = 1.96) -> tuple[float, float, float]:
 
 
 def episode_table(result: dict) -> dict:
-    """% distance and % success (with CIs) from per-episode rollout results, and the % of
-    episodes failing on each artifact kind (`fail_kind`: the kind's code, -1 for none)."""
+    """% distance and % success (with CIs; the distance's normal interval is clipped to
+    0-100) from per-episode rollout results, and the % of episodes failing on each artifact kind (`fail_kind`: the kind's code, -1 for none)."""
     dist = 100.0 * np.asarray(result["progress_frac"])
     succ = np.asarray(result["success"]) > 0.5
     n = len(succ)
     d, d_lo, d_hi = mean_ci(dist)
+    d_lo, d_hi = max(d_lo, 0.0), min(d_hi, 100.0)  # a few trials near 100%: no bound past it
     s_lo, s_hi = wilson_ci(float(succ.sum()), n)
     fail = np.asarray(result["fail_kind"])
     return {"n": n, "distance_pct": d, "distance_ci": [d_lo, d_hi],

@@ -38,11 +38,16 @@ def test_episode_table_from_hand_made_rollouts():
     assert t["n"] == 4
     assert t["distance_pct"] == pytest.approx(68.75)
     sd = np.std([100, 100, 50, 25], ddof=1)
-    assert t["distance_ci"][1] - t["distance_pct"] == pytest.approx(1.96 * sd / 2)
+    assert t["distance_pct"] - t["distance_ci"][0] == pytest.approx(1.96 * sd / 2)
+    assert t["distance_ci"][1] == 100.0  # 68.75 + 36.75 would pass 100%: clipped
     assert t["success_pct"] == pytest.approx(50.0)
     assert t["success_ci"] == [pytest.approx(100 * x) for x in stats.wilson_ci(2, 4)]
     assert t["fell_pct"] == pytest.approx(50.0)
     assert t["fail_on"] == {"jumps": 0.0, "gaps": pytest.approx(25.0), "stairs": pytest.approx(25.0)}
+    # near the finish the normal interval would pass 100% (97.5 + 1.96 x 5 / 2 = 102.4): clipped
+    near = {**res, "progress_frac": np.array([1.0, 1.0, 1.0, 0.9])}
+    lo, hi = stats.episode_table(near)["distance_ci"]
+    assert lo == pytest.approx(97.5 - 4.9) and hi == 100.0
 
 
 def test_single_horizon_lets_the_acceptance_speed_finish():
