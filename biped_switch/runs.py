@@ -335,8 +335,8 @@ def run_notes(run_dir, step_goal: bool = True) -> list[str]:
 
     It lies in a pipeline_check folder; its latest checkpoint is short of the step goal
     (progress.json's total_steps / total_env_steps, else config.json's) and its curriculum did
-    not finish (a PPO run stops when it does: `--total-steps` is then only a ceiling); its curriculum is
-    unfinished (guide forces on or difficulty below 1: progress.json's, else the last logged in
+    not finish (a PPO run stops when it does: `--total-steps` is then only a ceiling); its
+    curriculum is unfinished (guide forces on or difficulty below 1: progress.json's, else the last logged in
     metrics.csv, for folders of copied logs); a DQN selector chose among stand-in policies.
     A curriculum that ended on a push plateau is finished (Table I's curriculum cell says so)."""
     d = pathlib.Path(run_dir)

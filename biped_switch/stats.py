@@ -36,7 +36,8 @@ def mean_ci(x: np.ndarray, z: float = 1.96) -> tuple[float, float, float]:
 
 def episode_table(result: dict) -> dict:
     """% distance and % success (with CIs; the distance's normal interval is clipped to
-    0-100) from per-episode rollout results, and the % of episodes failing on each artifact kind (`fail_kind`: the kind's code, -1 for none)."""
+    0-100) from per-episode rollout results, and the % of episodes failing on each artifact
+    kind (`fail_kind`: the kind's code, -1 for none)."""
     dist = 100.0 * np.asarray(result["progress_frac"])
     succ = np.asarray(result["success"]) > 0.5
     n = len(succ)

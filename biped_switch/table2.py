@@ -468,9 +468,8 @@ def compare(a: dict, b: dict, key: str = "success") -> int:
     return 1 if alo > bhi else (-1 if ahi < blo else 0)
 
 
-def _cell(r: dict, key: str = "success") -> str:
-    lo, hi = r[f"{key}_ci"]
-    return f"{r['method']} {r[f'{key}_pct']:.1f} ({lo:.1f}-{hi:.1f})"
+def _cell(r: dict) -> str:
+    return f"{r['method']} {pct_ci(r['success_pct'], r['success_ci'])}"
 
 
 def paper_claims(rows: list[dict]) -> list[dict]:
@@ -478,46 +477,42 @@ def paper_claims(rows: list[dict]) -> list[dict]:
     (`compare`): {claim, verdict, evidence}. verdict: "holds", "fails" (with the rows that break
     it) or "not tested" (a row it needs was not run). "Comparable" means overlapping CIs."""
     by = {r["method"]: r for r in rows}
-    out = []
 
-    def add(claim, verdict, evidence):
-        out.append({"claim": claim, "verdict": verdict, "evidence": evidence})
+    def beats_all(m, others, show_all: bool):
+        """(verdict, evidence) of "row m beats each of `others`": every row's cell and the names
+        not beaten (`show_all`, a few rows), else the cells of those not beaten only."""
+        if not others:
+            return "not tested", f"{_cell(by[m])}; no other rows"
+        lost = [o for o in others if compare(by[m], by[o]) < 1]
+        if show_all:
+            ev = "; ".join(_cell(by[r]) for r in (m, *others))
+            return ("fails", f"{ev}; not beaten: {', '.join(lost)}") if lost else ("holds", ev)
+        if lost:
+            return "fails", f"{_cell(by[m])}; not beaten: " + "; ".join(_cell(by[o]) for o in lost)
+        return "holds", f"{_cell(by[m])}; above all {len(others)} other rows"
 
-    claim = "the estimator beats every heuristic (success)"
-    need = ("estimator", *HEURISTICS)
-    if all(m in by for m in need):
-        est = by["estimator"]
-        lost = [h for h in HEURISTICS if compare(est, by[h]) < 1]
-        add(claim, "fails" if lost else "holds",
-            f"{_cell(est)}; " + "; ".join(_cell(by[h]) for h in HEURISTICS)
-            + (f"; not beaten: {', '.join(lost)}" if lost else ""))
-    else:
-        add(claim, "not tested", "missing rows: " + ", ".join(m for m in need if m not in by))
-    claim = "without overlap the estimator collapses (success)"
-    if "estimator" in by and "estimator_no_overlap" in by:
-        no, est = by["estimator_no_overlap"], by["estimator"]
-        add(claim, "holds" if compare(no, est) < 0 else "fails", f"{_cell(no)}; {_cell(est)}")
-    else:
-        add(claim, "not tested", "missing rows: " + ", ".join(
-            m for m in ("estimator", "estimator_no_overlap") if m not in by))
-    claim = "the DQN is comparable to the estimator (overlapping success CIs)"
-    if "dqn" in by and "estimator" in by:
+    def dqn_vs_estimator():
         c = compare(by["dqn"], by["estimator"])
-        add(claim, "holds" if c == 0 else "fails",
-            f"{_cell(by['dqn'])}; {_cell(by['estimator'])}"
-            + ("" if c == 0 else f"; the DQN is {'better' if c > 0 else 'worse'}"))
-    else:
-        add(claim, "not tested", "missing rows: " + ", ".join(
-            m for m in ("dqn", "estimator") if m not in by))
-    claim = "end-to-end is best (success)"
-    if "end_to_end" in by and len(by) > 1:
-        e2e = by["end_to_end"]
-        rivals = [m for m in by if m != "end_to_end" and compare(e2e, by[m]) < 1]
-        add(claim, "fails" if rivals else "holds", f"{_cell(e2e)}"
-            + (f"; not beaten: " + "; ".join(_cell(by[m]) for m in rivals) if rivals else
-               f"; above all {len(by) - 1} other rows"))
-    else:
-        add(claim, "not tested", "missing rows: end_to_end")
+        return ("holds" if c == 0 else "fails", f"{_cell(by['dqn'])}; {_cell(by['estimator'])}"
+                + ("" if c == 0 else f"; the DQN is {'better' if c > 0 else 'worse'}"))
+
+    claims = (  # (claim, rows it needs, test)
+        ("the estimator beats every heuristic (success)", ("estimator", *HEURISTICS),
+         lambda: beats_all("estimator", HEURISTICS, show_all=True)),
+        ("without overlap the estimator collapses (success)", ("estimator", "estimator_no_overlap"),
+         lambda: ("holds" if compare(by["estimator_no_overlap"], by["estimator"]) < 0 else "fails",
+                  f"{_cell(by['estimator_no_overlap'])}; {_cell(by['estimator'])}")),
+        ("the DQN is comparable to the estimator (overlapping success CIs)", ("dqn", "estimator"),
+         dqn_vs_estimator),
+        ("end-to-end is best (success)", ("end_to_end",),
+         lambda: beats_all("end_to_end", [m for m in by if m != "end_to_end"], show_all=False)),
+    )
+    out = []
+    for claim, need, test in claims:
+        missing = [m for m in need if m not in by]
+        verdict, evidence = (("not tested", "missing rows: " + ", ".join(missing)) if missing
+                             else test())
+        out.append({"claim": claim, "verdict": verdict, "evidence": evidence})
     return out
 
 
