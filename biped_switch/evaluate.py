@@ -14,6 +14,8 @@ standing pause); prints a Markdown table and saves it with a CSV and a JSON of t
 (backend, track seed, horizon) under experiments/results/table1/. The time limit, unless
 `--horizon-s` is given, lets a walker at 0.6 m/s reach the farthest finish line of the tracks
 evaluated, with a 20% margin (`single_horizon_s`); each row says which limit it ran with.
+The rows join those already in table1.json for other policies and inits (the random-init suite
+finishes after the stand suite), unless `--fresh`; a table of other trials is refused.
 Policies load from `<runs>/<policy>_<init>/checkpoints/<latest>` (or models/policies/).
 
     python -m biped_switch.evaluate multi [--trials 2500] [--methods random detection ...]
@@ -55,7 +57,8 @@ from biped_switch.fig5 import plot_trial, trace_trial
 from biped_switch.paper import TABLE2_FAIL_ORDER
 from biped_switch.policies import POLICY_NAMES
 from biped_switch.runs import BASELINE_DIR, find_policy
-from biped_switch.table1 import HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, table1_markdown
+from biped_switch.table1 import (HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, table1_markdown,
+                                 merge_rows as merge_table1)
 from biped_switch.fig4b import plot_switch_distances
 from biped_switch.table2 import (BASELINES, MULTI_METHODS, available_methods, claims_markdown,
                                  evaluate_multi, failures_by_context, failures_markdown,
@@ -87,6 +90,10 @@ def main(argv=None) -> int:
     s.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
     s.add_argument("--runs", default="runs")
     s.add_argument("--out", default="experiments/results/table1")
+    s.add_argument("--fresh", action="store_true",
+                   help="replace OUT/table1.json (by default this run's rows join its rows of the "
+                        "other policies and inits, when made with the same trials, batch, seed, "
+                        "horizon and track seed)")
     m = sub.add_parser("multi", help="Table II: switching methods on multi-artifact tracks")
     m.add_argument("--methods", nargs="+", default=list(MULTI_METHODS), choices=MULTI_METHODS)
     m.add_argument("--trials", type=int, default=2500)
@@ -152,6 +159,12 @@ def main(argv=None) -> int:
         p.error(f"--trials and --batch must be >= 1 (got {a.trials}, {a.batch})")
     if a.horizon_s is not None and a.horizon_s <= 0:
         p.error(f"--horizon-s must be > 0 (got {a.horizon_s})")
+    json_path = pathlib.Path(a.out) / "table1.json"
+    settings = {**vars(a), "batch": min(a.batch, a.trials)}
+    try:  # before the rollouts, not after
+        merge_table1(_read_table(json_path, a.fresh), [], settings)
+    except ValueError as e:
+        p.error(f"{json_path}: {e}")
     rows, missing = [], []
     for init in a.inits:
         for policy in a.policies:
@@ -176,6 +189,15 @@ def main(argv=None) -> int:
               f"models/policies/); train with `make train-all`", file=sys.stderr)
     if not rows:
         return 1
+    lock = _lock(pathlib.Path(a.out), "table1")  # another `evaluate single` may have added rows
+    old = _read_table(json_path, a.fresh)
+    done = {(r["policy"], r["init"]) for r in rows}
+    rows = merge_table1(old, rows, settings)
+    if old:
+        kept = [f"{r['policy']}_{r['init']}" for r in rows if (r["policy"], r["init"]) not in done]
+        print(f"kept from {json_path}: {', '.join(kept) or 'no rows'}", flush=True)
+    settings["policies"] = list(dict.fromkeys(r["policy"] for r in rows))  # the table's, not this run's
+    settings["inits"] = list(dict.fromkeys(r["init"] for r in rows))
     out = _write_table(a.out, "table1", table1_markdown(rows),
                        ["policy", "init", "trials", "checkpoint", "train_step", "train_h",
                         "curriculum_end", "push_held", "speed_mps", "speed_lo", "speed_hi",
@@ -186,13 +208,19 @@ def main(argv=None) -> int:
                         for r in rows],
                        rows)
     (out / "table1.json").write_text(json.dumps(
-        {"settings": vars(a), "rows": rows, "track_seed": a.track_seed,
+        {"settings": settings, "rows": rows, "track_seed": a.track_seed,
          "backend": sorted({r["backend"] for r in rows}),
          "horizon_s": {f"{r['policy']}_{r['init']}": r["horizon_s"] for r in rows},
          "speed_note": "speed_mps: distance / time alive after the standing pause, mean over "
                        "episodes; speed_alive_mps: the same with the pause"},
         indent=2, default=str))
+    lock.close()
     return 0
+
+
+def _read_table(path: pathlib.Path, fresh: bool) -> dict | None:
+    """A saved table's JSON, or None when there is none or `--fresh` replaces it."""
+    return None if fresh or not path.exists() else json.loads(path.read_text())
 
 
 def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list) -> pathlib.Path:
@@ -211,13 +239,13 @@ def _write_table(out_dir, name: str, md: str, head: list, cols: list, rows: list
     return out
 
 
-def _lock(out: pathlib.Path):
-    """An exclusive lock on OUT/.table2.lock (released when the returned file is closed), so that
-    two `evaluate multi` runs of other methods into one table read and write it in turn."""
+def _lock(out: pathlib.Path, name: str = "table2"):
+    """An exclusive lock on OUT/.<name>.lock (released when the returned file is closed), so that
+    two evaluations of other rows into one table read and write it in turn."""
     import fcntl
 
     out.mkdir(parents=True, exist_ok=True)
-    f = (out / ".table2.lock").open("w")
+    f = (out / f".{name}.lock").open("w")
     fcntl.flock(f, fcntl.LOCK_EX)
     return f
 
@@ -297,7 +325,7 @@ def _main_multi(a, p) -> int:
     batch = min(a.batch, a.trials)
     t0 = time.perf_counter()
     json_path = pathlib.Path(a.out) / "table2.json"
-    old = None if a.fresh or not json_path.exists() else json.loads(json_path.read_text())
+    old = _read_table(json_path, a.fresh)
     settings = {**vars(a), "batch": batch}
     try:  # before an hour of rollouts, not after
         merge_rows(old, [], settings)
@@ -320,7 +348,7 @@ def _main_multi(a, p) -> int:
                                   per_trial=per_trial)
     session_s = time.perf_counter() - t0
     lock = _lock(pathlib.Path(a.out))  # another `evaluate multi` may have added rows meanwhile
-    old = None if a.fresh or not json_path.exists() else json.loads(json_path.read_text())
+    old = _read_table(json_path, a.fresh)
     rows = merge_rows(old, rows, settings)
     have = {r["method"] for r in rows}
     skipped = [sk for sk in skipped if sk.split(":")[0] not in have]

@@ -72,3 +72,24 @@ def pct_ci_cell(v, ci) -> str:
 def dist_success_cells(r: dict) -> str:
     """The "% distance (CI) | % success (CI)" cells of a Table I or II row."""
     return f"{pct_ci(r['distance_pct'], r['distance_ci'])} | {pct_ci(r['success_pct'], r['success_ci'])}"
+
+
+def join_rows(old: dict | None, rows: list[dict], settings: dict, trial_keys, key,
+              order=()) -> list[dict]:
+    """`rows` joined with the rows of `old` (a saved table: `settings` and `rows`) whose `key(row)`
+    is not among theirs, sorted by where `key(row)` stands in `order` (others last, in turn).
+    A table's rows are ready at different times (a policy or estimator that trains longer), so an
+    evaluation adds its rows to those already there. Raises ValueError naming the `trial_keys`
+    whose values differ, so rows of other trials never stand together in one table."""
+    if not old:
+        return list(rows)
+    before = old.get("settings", {})
+    diff = {k: (before.get(k), settings.get(k)) for k in trial_keys if before.get(k) != settings.get(k)}
+    if diff:
+        raise ValueError("the table there was made with other settings ("
+                         + ", ".join(f"{k}: {a!r} there, {b!r} now" for k, (a, b) in diff.items())
+                         + "): use another --out, or --fresh to replace it")
+    new = {key(r) for r in rows}
+    kept = [r for r in old.get("rows", []) if key(r) not in new]
+    rank = {k: i for i, k in enumerate(order)}
+    return sorted(kept + list(rows), key=lambda r: rank.get(key(r), len(rank)))

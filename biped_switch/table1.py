@@ -24,9 +24,9 @@ from biped_switch import paper
 from biped_switch import provenance as prov
 from biped_switch import runs as runs_lib
 from biped_switch.config import EVAL_TRACK_SEED
-from biped_switch.policies import load_policy
+from biped_switch.policies import POLICY_NAMES, load_policy
 from biped_switch.rollout import episode_keys, rollout
-from biped_switch.stats import dist_success_cells, episode_table, mean_ci, pct_ci_cell
+from biped_switch.stats import dist_success_cells, episode_table, join_rows, mean_ci, pct_ci_cell
 
 HORIZON_SPEED_MPS = 0.6  # Table I's acceptance speed: the derived horizon lets a walker this
 HORIZON_MARGIN = 1.2  # fast finish the longest track with this margin on the walking time
@@ -101,6 +101,20 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
                success_track_seeds=[track_seed + i for i in np.flatnonzero(
                    np.asarray(merged["success"]) > 0.5).tolist()])
     return out
+
+
+# The settings that fix what a Table I row measured (the batch too: it splits the rng), so that
+# `evaluate single` may add the rows of policies that finish later to a table of the same trials.
+TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "track_seed")
+
+
+def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]:
+    """`rows` joined with the rows of `old` (a table1.json) for the other (policy, init) pairs, in
+    the paper's order (stand before random, then POLICY_NAMES): the random-init policies finish
+    their curricula sessions after the stand suite (`stats.join_rows`)."""
+    order = [(pol, init) for init in env_lib.INITS for pol in POLICY_NAMES]
+    return join_rows(old, rows, settings, TRIAL_KEYS, key=lambda r: (r["policy"], r["init"]),
+                     order=order)
 
 
 def batch_key(seed: int, start: int) -> jax.Array:

@@ -34,7 +34,7 @@ from biped_switch import switching as sw
 from biped_switch import terrain
 from biped_switch.config import MULTI_TRACK_SEED, default_env_config, default_terrain_config
 from biped_switch.rollout import over_devices
-from biped_switch.stats import dist_success_cells, episode_table, pct_ci, pct_ci_cell
+from biped_switch.stats import dist_success_cells, episode_table, join_rows, pct_ci, pct_ci_cell
 
 SWITCH_METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator",
                   "estimator_no_overlap")
@@ -327,21 +327,11 @@ TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "n_artifacts", "stand_in",
 
 def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]:
     """`rows` joined with the rows of `old` (a table2.json) for the methods not among them, in
-    MULTI_METHODS order: the methods' inputs (sweeps, estimators, DQN, end-to-end policy) are
-    ready at different times, and each row's `policies` keeps where it came from. Raises
-    ValueError naming the settings that differ, so rows of other trials never stand together."""
-    if not old:
-        return list(rows)
-    before = old.get("settings", {})
-    diff = {k: (before.get(k), settings.get(k)) for k in TRIAL_KEYS if before.get(k) != settings.get(k)}
-    if diff:
-        raise ValueError("the table there was made with other settings ("
-                         + ", ".join(f"{k}: {a!r} there, {b!r} now" for k, (a, b) in diff.items())
-                         + "): use another --out, or --fresh to replace it")
-    new = {r["method"] for r in rows}
-    kept = [r for r in old.get("rows", []) if r["method"] not in new]
-    order = {m: i for i, m in enumerate(MULTI_METHODS)}
-    return sorted(kept + list(rows), key=lambda r: order.get(r["method"], len(order)))
+    MULTI_METHODS order (`stats.join_rows`): the methods' inputs (sweeps, estimators, DQN,
+    end-to-end policy) are ready at different times, and each row's `policies` keeps where it
+    came from."""
+    return join_rows(old, rows, settings, TRIAL_KEYS, key=lambda r: r["method"],
+                     order=MULTI_METHODS)
 
 
 def _reached(track, progress_frac: float, detect_range_m: float) -> tuple[float, list[int]]:

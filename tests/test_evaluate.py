@@ -1,6 +1,7 @@
 """Table I metrics on hand-made rollouts, against hand-computed values."""
 
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -142,6 +143,54 @@ def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
     assert row["finish_m_max"] == pytest.approx(finish, abs=1e-4)
     assert row["n"] == 2 and row["timed_out_pct"] == 100.0 and np.isfinite(row["speed_mps"])
     assert f"| 0.1 | 123 | {env.backend} |" in (out / "table1.md").read_text()
+
+
+def _table1_row(policy, init, success):
+    res = {"progress_frac": np.array([1.0, 0.5]), "success": np.array([success, 0.0]),
+           "fell": np.array([0.0, 1.0]), "fail_kind": np.array([-1, 1.0])}
+    row = stats.episode_table(res)
+    row.update(policy=policy, init=init, checkpoint=f"runs/{policy}_{init}/checkpoints/1",
+               train_step=1, train_h=0.5, curriculum={"stage_name": "pushes"},
+               curriculum_end="full pushes", push_held=1.0, speed_mps=0.5, speed_ci=[0.4, 0.6],
+               horizon_s=0.1, horizon_from="--horizon-s", timed_out_pct=0.0, track_seed=10_000,
+               backend="mujoco")
+    return row
+
+
+def test_single_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
+    """`evaluate single` for the stand suite, then for one random-init policy that finished its
+    curriculum later, leaves one Table I with both in order (stand rows first, then random; a
+    rerun policy replaces its row). Another trial count is refused before any rollout, naming
+    the setting, and --fresh replaces the table."""
+    calls = []
+
+    def fake_single(policy, init, ckpt, trials, *args, **kw):
+        calls.append((policy, init, trials))
+        return _table1_row(policy, init, 1.0 if len(calls) > 2 else 0.0)
+
+    monkeypatch.setattr(ev, "evaluate_single", fake_single)
+    monkeypatch.setattr(ev, "find_policy", lambda policy, init, runs: pathlib.Path(f"{policy}_{init}"))
+    out = tmp_path / "table1"
+    base = ["single", "--trials", "2", "--batch", "2", "--out", str(out)]
+    assert ev.main(base + ["--policies", "stairs", "jumps", "--inits", "stand"]) == 0
+    assert ev.main(base + ["--policies", "stairs", "--inits", "random", "stand"]) == 0
+    doc = json.loads((out / "table1.json").read_text())
+    assert [(r["policy"], r["init"]) for r in doc["rows"]] == [
+        ("jumps", "stand"), ("stairs", "stand"), ("stairs", "random")]
+    assert [r["success_pct"] for r in doc["rows"]] == [0.0, 50.0, 50.0]  # stairs/stand: the rerun's
+    assert doc["settings"]["policies"] == ["jumps", "stairs"]
+    assert doc["settings"]["inits"] == ["stand", "random"]
+    md = (out / "table1.md").read_text()
+    assert md.index("| jumps | stand |") < md.index("| stairs | stand |") < md.index("| stairs | random |")
+    assert (out / "table1.csv").read_text().count("\n") == 4  # header + 3 rows
+    with pytest.raises(SystemExit):
+        ev.main(["single", "--trials", "3", "--batch", "2", "--out", str(out)])
+    assert len(calls) == 4  # refused before rolling out
+    with pytest.raises(ValueError, match=r"track_seed: 10000 there, 5 now"):
+        table1.merge_rows(doc, [], {**doc["settings"], "track_seed": 5})
+    assert ev.main(base + ["--policies", "gaps", "--inits", "random", "--fresh"]) == 0
+    assert [(r["policy"], r["init"]) for r in json.loads((out / "table1.json").read_text())["rows"]] == [
+        ("gaps", "random")]
 
 
 def _fake_run(run_dir, wall_s, device="cuda:0", step=1000, **extra):
