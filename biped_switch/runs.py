@@ -109,7 +109,7 @@ def run_config(run_dir: pathlib.Path) -> config_dict.ConfigDict:
         for k, v in saved.get(section, {}).items():
             if k in cfg[section]:
                 cfg[section][k] = tuple(v) if isinstance(v, list) else v
-    for k in ("policy", "init", "episode_length", "n_tracks"):
+    for k in ("policy", "init", "seed", "episode_length", "n_tracks"):
         if k in saved:
             cfg[k] = saved[k]
     return cfg

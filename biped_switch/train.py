@@ -14,6 +14,11 @@ models/policies/ (`--commit` writes it: the latest checkpoint, config, metrics, 
 Metrics go to stdout, `metrics.csv` and TensorBoard (`tb/`); the config is saved as `config.json`.
 The run folder's layout and files are runs.py's; the config's defaults are config.py's.
 
+    python -m biped_switch.train --policy gaps --init random --probe-guides 0,0.1,0.2,0.3
+
+runs the curriculum check of the latest checkpoint at other guide levels (`probe_guides`): how
+tightly the policy leans on the guide level it trained at.
+
 Devices: the envs are split over every local device (pmap; gradients and normaliser statistics
 averaged). Multi-host: `--distributed` calls `jax.distributed.initialize()` first, the collectives
 then span every process's devices, and only process 0 writes checkpoints and logs (not tested
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import pathlib
 import sys
 import time
@@ -60,6 +66,19 @@ def milestone_rollout(env, act, rng, eval_cfg, levels) -> dict:
     at the curriculum's levels (difficulty, guide_scale, push_scale; traced ok)."""
     return rollout(env, act, rng, n_envs=eval_cfg.n_envs, horizon=eval_cfg.horizon_steps,
                    reset_args=dict(zip(("difficulty", "guide_scale", "push_scale"), levels)))
+
+
+def make_check(env, trainer, eval_cfg):
+    """The curriculum check, jitted: (params, norm, rng, levels) -> `milestone_rollout` of the
+    deterministic policy (the traced levels never recompile it)."""
+    @jax.jit
+    def check(params, norm, rng, levels):
+        def act(obs, key):
+            return trainer.policy(params, norm, obs, key, True)
+
+        return milestone_rollout(env, act, rng, eval_cfg, levels)
+
+    return check
 
 
 def fell_where(ev: dict) -> str:
@@ -135,13 +154,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     def curr_array(c):
         return jnp.asarray(c.levels(), jnp.float32)
 
-    @jax.jit
-    def evaluate(params, norm, rng, curr):
-        def act(obs, key):
-            return trainer.policy(params, norm, obs, key, True)
-
-        return milestone_rollout(env, act, rng, cfg.eval, curr)
-
+    evaluate = make_check(env, trainer, cfg.eval)
     rng = jax.random.PRNGKey(cfg.seed + 7919 * (step // trainer.steps_per_iteration + 1))
     rng, k = jax.random.split(rng)
     envs = trainer.reset_envs(k, curr_array(cs))
@@ -253,6 +266,48 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     return progress
 
 
+def probe_guides(run_dir: pathlib.Path, guide_levels, seed: int = 0, env_fn=train_env,
+                 ckpt: pathlib.Path | None = None) -> dict:
+    """The curriculum check of a run's latest checkpoint (or `ckpt`) at other guide levels, the
+    checkpoint's own difficulty and push level, one rng for all: how tightly a policy is tuned to
+    the guide level it trained at, and so whether a check that collapses after a cut fails on the
+    level or on the chunk trained after the cut (README, session 16)."""
+    bad = [g for g in guide_levels if not 0.0 <= float(g) <= 1.0]
+    if bad:
+        raise ValueError(f"guide levels {bad} are outside [0, 1]")
+    run_dir = pathlib.Path(run_dir)
+    ckpt = ckpt or runs_lib.latest_checkpoint(run_dir)
+    if ckpt is None:
+        raise FileNotFoundError(f"{run_dir}: no checkpoint to probe")
+    cfg = runs_lib.run_config(run_dir)
+    env = env_fn(cfg)
+    trainer = ppo.make_train(cfg, env)
+    ts, prog = restore(ckpt, trainer.init(jax.random.PRNGKey(cfg.seed)))
+    check = make_check(env, trainer, cfg.eval)
+    cs = curr_lib.CurriculumState.from_dict(prog.get("curriculum_before", prog["curriculum"]))
+    rows = []
+    for g in guide_levels:
+        levels = jnp.asarray((cs.difficulty, float(g), cs.push_scale), jnp.float32)
+        ev = summarize(check(ts.params, ts.norm, jax.random.PRNGKey(seed), levels),
+                       cfg.eval.horizon_steps)
+        rows.append({"guide_scale": float(g), **{k: ev[k] for k in (
+            "fell", "reward_per_step", "distance_m", "success")}})
+    return {"checkpoint": str(ckpt), "step": prog["step"], "trained_at": cs.as_dict(),
+            "seed": seed, "n_envs": int(cfg.eval.n_envs), "horizon_steps": int(cfg.eval.horizon_steps),
+            "rows": rows}
+
+
+def probe_markdown(doc: dict) -> str:
+    c = doc["trained_at"]
+    lines = [f"{doc['checkpoint']} (step {doc['step']:,}, trained at difficulty "
+             f"{c['difficulty']:g}, guide {c['guide_scale']:.3g}, push {c['push_scale']:.3g}): "
+             f"{doc['n_envs']} check episodes of {doc['horizon_steps']} steps, rng seed {doc['seed']}",
+             "", "| guide | fell | reward/step | distance m |", "|---|---|---|---|"]
+    lines += [f"| {r['guide_scale']:.3g} | {r['fell']:.2f} | {r['reward_per_step']:.2f} | "
+              f"{r['distance_m']:.1f} |" for r in doc["rows"]]
+    return "\n".join(lines)
+
+
 def saved_learning_rate(run_dir: pathlib.Path) -> float | None:
     """The Adam step size a run was last trained with (its config.json under runs/, else the
     committed copy's), so that a resume keeps a lowered rate without repeating the flag."""
@@ -291,6 +346,10 @@ def main(argv=None) -> int:
     p.add_argument("--name", default=None, help="run folder name (default <policy>_<init>)")
     p.add_argument("--distributed", action="store_true", help="jax.distributed.initialize() first")
     p.add_argument("--plot", metavar="PNG", help="only plot the run's training curves to PNG")
+    p.add_argument("--probe-guides", metavar="G1,G2,...",
+                   help="only run the curriculum check of the run's latest checkpoint at these "
+                        "guide levels (its own difficulty and pushes), print a table and write "
+                        "probe_guides.json in the run folder")
     p.add_argument("--commit", action="store_true",
                    help="only copy the run's latest checkpoint, config, metrics and curves to "
                         "models/policies/<run>/ (then git-commit that folder)")
@@ -298,6 +357,17 @@ def main(argv=None) -> int:
     if a.plot:
         runs_lib.plot_curves(pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}"),
                              pathlib.Path(a.plot))
+        return 0
+    if a.probe_guides:
+        run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
+        runs_lib.restore_committed(run_dir)
+        try:
+            levels = [float(g) for g in a.probe_guides.split(",")]
+            doc = probe_guides(run_dir, levels, a.seed)
+        except (ValueError, FileNotFoundError) as e:
+            p.error(f"--probe-guides {a.probe_guides}: {e}")
+        print(probe_markdown(doc))
+        (run_dir / "probe_guides.json").write_text(json.dumps(doc, indent=2))
         return 0
     if a.commit:
         run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")

@@ -199,6 +199,31 @@ def test_loaded_policy_acts_like_the_trainer(trained):
         load_policy(ckpt, pd_env)
 
 
+def test_probe_guides_is_the_curriculum_check_at_other_levels(trained):
+    """`--probe-guides`: the check of the latest checkpoint at each guide level, one rng, at the
+    difficulty and pushes it trained at; each row matches the same episodes rolled out through
+    the other loader (policies.load_policy), and a level outside [0, 1] is named."""
+    run = trained["dir"]
+    doc = train_lib.probe_guides(run, [0.0, 0.5], seed=3)
+    ckpt = runs_lib.latest_checkpoint(run)
+    prog = json.loads((ckpt / runs_lib.PROGRESS).read_text())
+    assert doc["checkpoint"] == str(ckpt) and doc["trained_at"] == prog["curriculum_before"]
+    assert [r["guide_scale"] for r in doc["rows"]] == [0.0, 0.5]
+    cfg = runs_lib.run_config(run)
+    env = train_lib.train_env(cfg)
+    act, _ = load_policy(ckpt, env)
+    d, p = prog["curriculum_before"]["difficulty"], prog["curriculum_before"]["push_scale"]
+    for row in doc["rows"]:
+        ev = train_lib.summarize(train_lib.milestone_rollout(
+            env, act, jax.random.PRNGKey(3), cfg.eval, (d, row["guide_scale"], p)),
+            cfg.eval.horizon_steps)
+        for k in ("fell", "reward_per_step", "distance_m"):
+            assert row[k] == pytest.approx(ev[k], rel=1e-4, abs=1e-5), k
+    with pytest.raises(ValueError, match="1.5"):
+        train_lib.probe_guides(run, [1.5])
+    assert "| 0.5 |" in train_lib.probe_markdown(doc)
+
+
 def test_the_push_stage_ends_with_a_milestone_at_full_pushes(tmp_path, monkeypatch):
     """curriculum_done: pushes at 1 and one more milestone there; not before. Training then stops
     short of total_timesteps (and a rerun trains nothing) unless stop_when_done is off."""
