@@ -298,6 +298,7 @@ def probe_guides(run_dir: pathlib.Path, guide_levels, seed: int = 0, env_fn=trai
 
 
 def probe_markdown(doc: dict) -> str:
+    """A `probe_guides` result as a Markdown table, under a line saying what was probed."""
     c = doc["trained_at"]
     lines = [f"{doc['checkpoint']} (step {doc['step']:,}, trained at difficulty "
              f"{c['difficulty']:g}, guide {c['guide_scale']:.3g}, push {c['push_scale']:.3g}): "
