@@ -145,10 +145,15 @@ def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
     assert f"| 0.1 | 123 | {env.backend} |" in (out / "table1.md").read_text()
 
 
+def _two_trials(success):
+    """The episode table of two trials: the first finishes (`success`), the second falls halfway."""
+    return stats.episode_table({"progress_frac": np.array([1.0, 0.5]),
+                                "success": np.array([success, 0.0]),
+                                "fell": np.array([0.0, 1.0]), "fail_kind": np.array([-1, 1.0])})
+
+
 def _table1_row(policy, init, success):
-    res = {"progress_frac": np.array([1.0, 0.5]), "success": np.array([success, 0.0]),
-           "fell": np.array([0.0, 1.0]), "fail_kind": np.array([-1, 1.0])}
-    row = stats.episode_table(res)
+    row = _two_trials(success)
     row.update(policy=policy, init=init, checkpoint=f"runs/{policy}_{init}/checkpoints/1",
                train_step=1, train_h=0.5, curriculum={"stage_name": "pushes"},
                curriculum_end="full pushes", push_held=1.0, speed_mps=0.5, speed_ci=[0.4, 0.6],
@@ -397,9 +402,7 @@ def test_demo_runs_end_to_end_on_the_trained_suite(tmp_path, monkeypatch, capsys
 
 
 def _table2_row(method, success, wall_s=10.0):
-    res = {"progress_frac": np.array([1.0, 0.5]), "success": np.array([success, 0.0]),
-           "fell": np.array([0.0, 1.0]), "fail_kind": np.array([-1, 1.0])}
-    row = stats.episode_table(res)
+    row = _two_trials(success)
     row.update(method=method, init="stand", wall_s=wall_s, switches_per_trial=3.0,
                policies=[f"{method} suite"], backend="mujoco")
     return row
