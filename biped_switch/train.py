@@ -266,9 +266,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     return progress
 
 
-def probe_guides(run_dir: pathlib.Path, guide_levels, seed: int = 0, env_fn=train_env,
-                 ckpt: pathlib.Path | None = None) -> dict:
-    """The curriculum check of a run's latest checkpoint (or `ckpt`) at other guide levels, the
+def probe_guides(run_dir: pathlib.Path, guide_levels, seed: int = 0) -> dict:
+    """The curriculum check of a run's latest checkpoint at other guide levels, the
     checkpoint's own difficulty and push level, one rng for all: how tightly a policy is tuned to
     the guide level it trained at, and so whether a check that collapses after a cut fails on the
     level or on the chunk trained after the cut (README, session 16)."""
@@ -276,11 +275,11 @@ def probe_guides(run_dir: pathlib.Path, guide_levels, seed: int = 0, env_fn=trai
     if bad:
         raise ValueError(f"guide levels {bad} are outside [0, 1]")
     run_dir = pathlib.Path(run_dir)
-    ckpt = ckpt or runs_lib.latest_checkpoint(run_dir)
+    ckpt = runs_lib.latest_checkpoint(run_dir)
     if ckpt is None:
         raise FileNotFoundError(f"{run_dir}: no checkpoint to probe")
     cfg = runs_lib.run_config(run_dir)
-    env = env_fn(cfg)
+    env = train_env(cfg)
     trainer = ppo.make_train(cfg, env)
     ts, prog = restore(ckpt, trainer.init(jax.random.PRNGKey(cfg.seed)))
     check = make_check(env, trainer, cfg.eval)
