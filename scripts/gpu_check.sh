@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# The GPU host's check of the MJX path, as one device call (carry [".whl"], made by `make wheels`):
+#   bash scripts/gpu_check.sh
+# Each bench prints one JSON object into $OUT (or ./gpu_check/ off the device tool) and has its own
+# time limit, so one slow compile cannot eat the others' share of the 10-minute call.
+set -uo pipefail
+out=${OUT:-gpu_check}; mkdir -p "$out"
+export PYTHONUNBUFFERED=1
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$out/nvidia_smi.csv"
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target /tmp/site .whl/*.whl || exit 1
+export PYTHONPATH=/tmp/site:$PWD
+python3 -c 'import jax, mujoco; print("jax", jax.__version__, jax.devices(), "mujoco", mujoco.__version__)' 2>&1 | tail -2
+# Env stepping with MJX at batch 8192 (7-artifact mixed tracks), then the C engine for comparison.
+timeout 200 python3 -m biped_switch.bench --backend mjx --batch 8192 --json > "$out/gpu_mjx_batch8192.json" 2> "$out/gpu_mjx_batch8192.err"; echo "mjx bench rc=$?"
+# One PPO chunk's worth: collection + updates with the gpu preset (MJX), compile time included.
+timeout 220 python3 -m biped_switch.bench --train --preset gpu --backend mjx --json > "$out/gpu_train.json" 2> "$out/gpu_train.err"; echo "train bench rc=$?"
+# The switch estimator on 100k points (the first epoch compiles).
+timeout 100 python3 -m biped_switch.bench --estimator --points 100000 --epochs 4 --json > "$out/gpu_estimator.json" 2> "$out/gpu_estimator.err"; echo "estimator bench rc=$?"
+for f in "$out"/*.json; do echo "== $f"; cat "$f"; done
+for f in "$out"/*.err; do echo "== $f"; tail -5 "$f"; done
