@@ -638,8 +638,14 @@ def main(argv=None) -> int:
         p.error("--points and --batch must be >= 1")
     out = pathlib.Path(a.out)
     lookup_path = pathlib.Path(a.results) / f"lookup_{name}.json"
-    stored_doc = json.loads(lookup_path.read_text()) if lookup_path.exists() else {}
-    stored = stored_doc.get("meta", {}).get("sweeps", {})
+
+    def read_stored() -> tuple[dict, dict]:
+        # Read when needed, never at the start: a sweep of another target of this init, run
+        # beside this one, may write the lookup while this one runs (session 19 kept a stale
+        # entry: one target's wall time with a speed from an older session).
+        doc = json.loads(lookup_path.read_text()) if lookup_path.exists() else {}
+        return doc, doc.get("meta", {}).get("sweeps", {})
+
     data, stats = {}, {}
     for target in a.targets:
         print(f"sweep {name}/{target}: {cfg.n_points:,} points, batch {cfg.batch} on "
@@ -655,9 +661,11 @@ def main(argv=None) -> int:
                          "points_per_s_steady": rate_or_none(run.steady_points, run.steady_s),
                          "device": str(jax.devices()[0]),
                          "backend": env_lib.resolve_backend(a.backend)}
+        stored = read_stored()[1]
         if run.points_new == 0 and stored.get(target):  # nothing to make: keep its recorded speed
             stats[target] = {**stored[target], **data_stats(data[target], run.path, run.wall_s_total)}
         print(json.dumps({"sweep": f"{name}/{target}", **stats[target]}), flush=True)
+    stored_doc, stored = read_stored()
     for target in terrain.ARTIFACT_KINDS:  # the lookup table covers every target swept so far
         path = out / name / f"{target}.npz"
         if target not in data and path.exists():

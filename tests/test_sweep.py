@@ -430,6 +430,30 @@ def test_main_keeps_the_stats_of_targets_swept_before(fake_sweep, tmp_path):
     assert again == g
 
 
+def test_main_reads_the_lookup_when_it_ends_not_when_it_starts(fake_sweep, tmp_path, monkeypatch):
+    """Two targets swept side by side (two commands, one core each): the one that ends last must
+    keep the other's entry as that command wrote it, not the lookup as it was when it started."""
+    out, res = tmp_path / "sweeps", tmp_path / "lookup"
+    argv = ["--points", "30", "--batch", "6", "--tracks", "1000", "--out", str(out),
+            "--results", str(res), "--targets"]
+    inner = sweep.run_sweep
+
+    def jumps_ends_during_gaps(init, target, *args, **kw):
+        if target == "gaps":  # the jumps command starts after gaps' and ends before it
+            monkeypatch.setattr(sweep, "run_sweep", inner)
+            assert sweep.main(argv + ["jumps"]) == 0
+            monkeypatch.setattr(sweep, "run_sweep", jumps_ends_during_gaps)
+        return inner(init, target, *args, **kw)
+
+    monkeypatch.setattr(sweep, "run_sweep", jumps_ends_during_gaps)
+    assert sweep.main(argv + ["gaps"]) == 0
+    sweeps = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]
+    j = sweeps["jumps"]  # as the jumps command measured it: 2 batches of 20 points, 21 s
+    assert (j["points"], j["points_new"], j["wall_s"], j["loop_s"]) == (40, 40, 21, 20)
+    assert j["points_per_s"] == 2.0 and j["points_per_s_steady"] == 2.0
+    assert sweeps["gaps"]["points_new"] == 40
+
+
 def test_main_keeps_the_table_of_a_target_whose_data_is_gone(fake_sweep, tmp_path):
     """Sweep data is too large to commit, so a later session may sweep gaps without jumps'
     npz: jumps' table (rates, counts, best distances), stats and policies stay in the lookup."""
