@@ -14,11 +14,11 @@ python3 -c 'import jax, mujoco; print("jax", jax.__version__, jax.devices(), "mu
 steps=" ${*:-mjx train estimator chunk} "
 has() { [[ "$steps" == *" $1 "* ]]; }
 # Env stepping with MJX at batch 8192 (7-artifact mixed tracks).
-has mjx && timeout 200 python3 -m biped_switch.bench --backend mjx --batch 8192 --json > "$out/gpu_mjx_batch8192.json" 2> "$out/gpu_mjx_batch8192.err"; echo "mjx bench rc=$?"
+if has mjx; then timeout 200 python3 -m biped_switch.bench --backend mjx --batch 8192 --json > "$out/gpu_mjx_batch8192.json" 2> "$out/gpu_mjx_batch8192.err"; echo "mjx bench rc=$?"; fi
 # One PPO chunk's worth: collection + updates with the gpu preset (MJX), compile time included.
-has train && timeout 220 python3 -m biped_switch.bench --train --preset gpu --backend mjx --json > "$out/gpu_train.json" 2> "$out/gpu_train.err"; echo "train bench rc=$?"
+if has train; then timeout 220 python3 -m biped_switch.bench --train --preset gpu --backend mjx --json > "$out/gpu_train.json" 2> "$out/gpu_train.err"; echo "train bench rc=$?"; fi
 # The switch estimator on 100k points (the first epoch compiles).
-has estimator && timeout 100 python3 -m biped_switch.bench --estimator --points 100000 --epochs 4 --json > "$out/gpu_estimator.json" 2> "$out/gpu_estimator.err"; echo "estimator bench rc=$?"
+if has estimator; then timeout 100 python3 -m biped_switch.bench --estimator --points 100000 --epochs 4 --json > "$out/gpu_estimator.json" 2> "$out/gpu_estimator.err"; echo "estimator bench rc=$?"; fi
 # Two chunks of the real training command (gpu preset, MJX, curriculum checks, checkpoints) on a
 # fresh walk run: the whole train path, not just its iteration.
 if has chunk; then
