@@ -641,8 +641,7 @@ def main(argv=None) -> int:
 
     def read_stored() -> tuple[dict, dict]:
         # Read when needed, never at the start: a sweep of another target of this init, run
-        # beside this one, may write the lookup while this one runs (session 19 kept a stale
-        # entry: one target's wall time with a speed from an older session).
+        # beside this one, may write the lookup while this one runs.
         doc = json.loads(lookup_path.read_text()) if lookup_path.exists() else {}
         return doc, doc.get("meta", {}).get("sweeps", {})
 

@@ -7,8 +7,7 @@ set -uo pipefail
 out=${OUT:-gpu_check}; mkdir -p "$out"
 export PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$out/nvidia_smi.csv"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-  --target /tmp/site .whl/*.whl || exit 1
+bash scripts/gpu_run.sh true || exit 1  # installs the carried wheels into /tmp/site, once
 export PYTHONPATH=/tmp/site:$PWD
 python3 -c 'import jax, mujoco; print("jax", jax.__version__, jax.devices(), "mujoco", mujoco.__version__)' 2>&1 | tail -2
 steps=" ${*:-mjx train estimator chunk} "
