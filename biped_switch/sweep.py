@@ -660,9 +660,9 @@ def main(argv=None) -> int:
                          "points_per_s_steady": rate_or_none(run.steady_points, run.steady_s),
                          "device": str(jax.devices()[0]),
                          "backend": env_lib.resolve_backend(a.backend)}
-        stored = read_stored()[1]
-        if run.points_new == 0 and stored.get(target):  # nothing to make: keep its recorded speed
-            stats[target] = {**stored[target], **data_stats(data[target], run.path, run.wall_s_total)}
+        # nothing to make: keep its recorded speed
+        if run.points_new == 0 and (kept := read_stored()[1].get(target)):
+            stats[target] = {**kept, **data_stats(data[target], run.path, run.wall_s_total)}
         print(json.dumps({"sweep": f"{name}/{target}", **stats[target]}), flush=True)
     stored_doc, stored = read_stored()
     for target in terrain.ARTIFACT_KINDS:  # the lookup table covers every target swept so far
