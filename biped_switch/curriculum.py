@@ -20,9 +20,14 @@ With a patience of 2, gaps at guides 0.1 fell 92-100% of four checks over two vi
 training episodes went further each chunk (mean distance 1.7 -> 4.0 m, then 3.1 -> 5.3 m): it was
 adapting when the step back came, so the patience is 4.
 
-The guides' last notches are finer: below 2 * guide_step each notch halves the scale, down to
-`guide_min_step` (0.1 -> 0.05 -> 0.025 -> 0). Jumps at guides 0.1 fell in 12-27% of its
-evaluations and at 0 in 100%, twice, so the step to 0 was a cliff (session 7).
+The guides' last notches are finer: once `guide_notch` of the scale is less than guide_step, each
+notch takes that fraction of it, down to `guide_min_step` (0.5 halves: 0.2 -> 0.1 -> 0.05 ->
+0.025 -> 0). Jumps at guides 0.1 fell in 12-27% of its evaluations and at 0 in 100%, twice, so
+the step to 0 was a cliff (session 7). The end-to-end `mixed` policy met a cliff one notch
+earlier: over 13 cuts 0.2 -> 0.1 in session 19 every check at 0.1 fell 66-100% and each visit
+ended in a step back, while its checkpoint at 0.2 fell 31% / 12% / 41% / 61% / 86% at guides
+0.2 / 0.175 / 0.15 / 0.125 / 0.1 (session 20), so it trains with `guide_notch` 0.25
+(0.2 -> 0.15 -> 0.1125 -> 0.084 -> 0.059 -> 0.034 -> 0).
 The push stage can also end on a plateau (`push_plateau_steps`, session 11; 0 disables): when its
 highest level has not risen for that many env steps. The paper gives no push magnitude and says
 the gradual pushes "allowed for greater final disturbances", so the level a policy holds is a
@@ -107,11 +112,14 @@ def update(cs: CurriculumState, reward_per_step, progress_frac, cfg=None,
     difficulty = jnp.where(hit & in_terrain, jnp.minimum(cs.difficulty + cfg.difficulty_step, 1.0),
                            cs.difficulty)
     g = cs.guide_scale
-    # the last guide notches halve (0.1 -> 0.05 -> 0.025 -> 0); back, they double again
-    fwd = jnp.minimum(cfg.guide_step, jnp.maximum(0.5 * g, cfg.guide_min_step))
-    bwd = jnp.minimum(cfg.guide_step, jnp.maximum(g, cfg.guide_min_step))
+    # the last guide notches take `guide_notch` of the scale (0.5: 0.1 -> 0.05 -> 0.025 -> 0);
+    # a step back undoes one (0.5: doubles), so forward and back walk the same ladder
+    f = cfg.guide_notch
+    fwd = jnp.minimum(cfg.guide_step, jnp.maximum(f * g, cfg.guide_min_step))
+    bwd = jnp.minimum(cfg.guide_step, jnp.maximum(g * f / (1.0 - f), cfg.guide_min_step))
     guide = jnp.where(hit & in_guides, jnp.maximum(g - fwd, 0.0), g)
-    guide = jnp.where(guide <= 1e-6, 0.0, guide)
+    # a notch that would leave less than guide_min_step goes to 0
+    guide = jnp.where(guide < cfg.guide_min_step - 1e-6, 0.0, guide)
     push = jnp.where(hit & in_pushes, jnp.minimum(cs.push_scale + cfg.push_step, 1.0), cs.push_scale)
     new_stage = jnp.where(hit & in_terrain & at_full, 1,
                           jnp.where(hit & in_guides & guides_off, 2, stage))

@@ -308,11 +308,12 @@ def probe_markdown(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def saved_learning_rate(run_dir: pathlib.Path) -> float | None:
-    """The Adam step size a run was last trained with (its config.json under runs/, else the
-    committed copy's), so that a resume keeps a lowered rate without repeating the flag."""
-    lr = runs_lib.read_config(run_dir, committed=True).get("ppo", {}).get("learning_rate")
-    return None if lr is None else float(lr)
+def saved_setting(run_dir: pathlib.Path, section: str, key: str) -> float | None:
+    """A setting a run was last trained with (its config.json under runs/, else the committed
+    copy's; None when neither has it), so that a resume keeps a flag's value (a lowered learning
+    rate, a finer guide notch) without repeating the flag."""
+    v = runs_lib.read_config(run_dir, committed=True).get(section, {}).get(key)
+    return None if v is None else float(v)
 
 
 def main(argv=None) -> int:
@@ -332,6 +333,10 @@ def main(argv=None) -> int:
     p.add_argument("--learning-rate", type=float, default=None,
                    help="PPO's Adam step size (default: a resumed run's own, from its "
                         "config.json, else 3e-4; a resume keeps the optimiser's moments)")
+    p.add_argument("--guide-notch", type=float, default=None, metavar="FRAC",
+                   help="the fraction of the guide scale each of the curriculum's last guide "
+                        "notches takes, in (0, 1) (default: a resumed run's own, else 0.5, "
+                        "which halves; mixed trains with 0.25: curriculum.py)")
     p.add_argument("--warm-start", default=None, metavar="CKPT_OR_RUN",
                    help="start a new run from the parameters of a checkpoint folder, a run "
                         "folder's latest checkpoint, or a run name (e.g. walk_stand: runs/, then "
@@ -394,9 +399,18 @@ def main(argv=None) -> int:
         if not a.learning_rate > 0:
             p.error(f"--learning-rate must be > 0, got {a.learning_rate}")
         cfg.ppo.learning_rate = a.learning_rate
-    elif (lr := saved_learning_rate(run_dir)) is not None and lr != cfg.ppo.learning_rate:
+    elif (lr := saved_setting(run_dir, "ppo", "learning_rate")) is not None \
+            and lr != cfg.ppo.learning_rate:
         print(f"keeping the run's learning rate {lr:g} (config.json; --learning-rate changes it)")
         cfg.ppo.learning_rate = lr
+    if a.guide_notch is not None:
+        if not 0.0 < a.guide_notch < 1.0:
+            p.error(f"--guide-notch must be in (0, 1), got {a.guide_notch}")
+        cfg.curriculum.guide_notch = a.guide_notch
+    elif (gn := saved_setting(run_dir, "curriculum", "guide_notch")) is not None \
+            and gn != cfg.curriculum.guide_notch:
+        print(f"keeping the run's guide notch {gn:g} (config.json; --guide-notch changes it)")
+        cfg.curriculum.guide_notch = gn
     if a.total_steps is not None:
         cfg.total_timesteps = a.total_steps
     if a.chunk_steps is not None:

@@ -92,6 +92,46 @@ def test_coarse_guide_notches_when_min_step_is_the_step():
     assert float(cs.guide_scale) == pytest.approx(0.1)
 
 
+def test_a_finer_guide_notch_walks_a_ladder_both_ways():
+    """guide_notch 0.25 (the mixed policy's): from 0.4 the notch is 0.1, below it a quarter of the
+    scale, at least guide_min_step, and a notch that would leave less than that ends at 0 (0.034375
+    - 0.025 < 0.025); a step back undoes a notch (g / 0.75, at least guide_min_step). Hand-computed:
+    0.2 * 0.75 = 0.15, 0.15 * 0.75 = 0.1125, 0.1125 * 0.75 = 0.084375, then 0.25 * 0.084375 <
+    0.025, so - 0.025 twice."""
+    cfg = default_curriculum_config()
+    cfg.guide_notch = 0.25
+    cs, fwd = cl.CurriculumState(1, 1.0, 0.4, 0.0), []
+    for _ in range(8):
+        cs = cl.update(cs, HIT + 0.1, 1.0, cfg)
+        fwd.append(round(float(cs.guide_scale), 6))
+    # 0.4 - 0.1; then * 0.75 while a quarter is >= 0.025 (0.126563 / 4 = 0.0316, 0.094922 / 4 =
+    # 0.0237 < 0.025); then - 0.025 until less than 0.025 would be left
+    assert fwd == [0.3, 0.225, 0.16875, 0.126563, 0.094922, 0.069922, 0.044922, 0.0]
+    cs = cl.update(cl.CurriculumState(1, 1.0, 0.2, 0.0), HIT + 0.1, 1.0, cfg)
+    ladder = [round(float(cs.guide_scale), 6)]
+    for _ in range(5):
+        cs = cl.update(cs, HIT + 0.1, 1.0, cfg)
+        ladder.append(round(float(cs.guide_scale), 6))
+    assert ladder == [0.15, 0.1125, 0.084375, 0.059375, 0.034375, 0.0]
+    assert int(cl.update(cs, HIT + 0.1, 1.0, cfg).stage) == 2  # one more milestone at 0 ends it
+    cfg.regress_patience = 1
+    back = []
+    for g in (0.0, 0.034375, 0.084375, 0.1125, 0.15, 0.2):
+        cs = cl.update(cl.CurriculumState(1, 1.0, g, 0.0), 1.0, 1.0, cfg, fell_frac=1.0)
+        back.append(round(float(cs.guide_scale), 6))
+    assert back == [0.025, 0.059375, 0.1125, 0.15, 0.2, 0.266667]  # 0.2667 * 0.75 = 0.2
+
+
+def test_guide_notch_half_is_the_halving_ladder():
+    """The default 0.5 keeps every run before session 20 on its own ladder."""
+    assert CFG.guide_notch == 0.5
+    cs, ladder = cl.CurriculumState(1, 1.0, 0.3, 0.0), []
+    for _ in range(5):
+        cs = cl.update(cs, HIT + 0.1, 1.0, CFG)
+        ladder.append(round(float(cs.guide_scale), 6))
+    assert ladder == [0.2, 0.1, 0.05, 0.025, 0.0]
+
+
 def test_regress_can_be_disabled():
     cfg = default_curriculum_config()
     cfg.regress_fell = 1.0

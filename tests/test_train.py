@@ -356,18 +356,28 @@ def test_warm_start_names_resolve_to_checkpoints(trained):
         runs_lib.resolve_checkpoint("no_such_run", run_dir.parent)
 
 
-def test_a_resume_keeps_the_runs_lowered_learning_rate(tmp_path, monkeypatch):
-    """The rate comes from runs/<run>/config.json, else the committed copy's; none: None."""
+def test_a_resume_keeps_the_runs_own_settings(tmp_path, monkeypatch):
+    """A flag's value (learning rate, guide notch) comes from runs/<run>/config.json, else the
+    committed copy's; none: None."""
     committed = tmp_path / "models" / "policies"
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", committed)
     run = tmp_path / "runs" / "jumps_stand"
-    assert train_lib.saved_learning_rate(run) is None
+    assert train_lib.saved_setting(run, "ppo", "learning_rate") is None
     (committed / "jumps_stand").mkdir(parents=True)
-    (committed / "jumps_stand" / "config.json").write_text(json.dumps({"ppo": {"learning_rate": 2e-4}}))
-    assert train_lib.saved_learning_rate(run) == pytest.approx(2e-4)
+    (committed / "jumps_stand" / "config.json").write_text(json.dumps(
+        {"ppo": {"learning_rate": 2e-4}, "curriculum": {"guide_notch": 0.25}}))
+    assert train_lib.saved_setting(run, "ppo", "learning_rate") == pytest.approx(2e-4)
+    assert train_lib.saved_setting(run, "curriculum", "guide_notch") == pytest.approx(0.25)
     run.mkdir(parents=True)
     (run / "config.json").write_text(json.dumps({"ppo": {"learning_rate": 1e-4}}))
-    assert train_lib.saved_learning_rate(run) == pytest.approx(1e-4)
+    assert train_lib.saved_setting(run, "ppo", "learning_rate") == pytest.approx(1e-4)
+    assert train_lib.saved_setting(run, "curriculum", "guide_notch") is None
+
+
+def test_guide_notch_flag_names_a_bad_value(capsys):
+    with pytest.raises(SystemExit):
+        train_lib.main(["--policy", "mixed", "--guide-notch", "1.0"])
+    assert "--guide-notch must be in (0, 1), got 1.0" in capsys.readouterr().err
 
 
 def test_run_config_reads_back_what_the_run_was_made_with(tmp_path):
