@@ -60,6 +60,7 @@ train: $(STAMP)
 # scratch), so the composed suite and the end-to-end baseline share one prior. The random-init
 # walk policy trains from scratch and seeds the random-init artifact policies (RWARM=walk_random;
 # RWARM= trains them from scratch): the no-overlap ablation never inherits the stand policies.
+# `mixed` anneals its last guides in quarter notches (curriculum.py: halves were a cliff for it).
 WARM ?= walk_stand
 RWARM ?= walk_random
 train-all: $(STAMP)
@@ -69,7 +70,7 @@ train-all: $(STAMP)
 	$(PY) -m biped_switch.train --policy walk --init random $(TRAIN_ARGS) || exit 1
 	for p in jumps gaps stairs; do \
 	  $(PY) -m biped_switch.train --policy $$p --init random $(if $(RWARM),--warm-start $(RWARM)) $(TRAIN_ARGS) || exit 1; done
-	$(PY) -m biped_switch.train --policy mixed --init stand $(if $(WARM),--warm-start $(WARM)) $(TRAIN_ARGS)
+	$(PY) -m biped_switch.train --policy mixed --init stand --guide-notch 0.25 $(if $(WARM),--warm-start $(WARM)) $(TRAIN_ARGS)
 
 # Offscreen rendering on a CPU host: OSMesa (Debian's libosmesa6), installed with apt (as root)
 # unless already there (then this returns at once). A GPU host uses EGL.
@@ -116,7 +117,7 @@ reproduce: $(STAMP)
 	$(PY) -m biped_switch.sweep --init stand
 	$(PY) -m biped_switch.sweep --init random
 	$(MAKE) train-estimators train-dqn
-	$(PY) -m biped_switch.train --policy mixed --init stand $(TRAIN_ARGS)
+	$(PY) -m biped_switch.train --policy mixed --init stand --guide-notch 0.25 $(TRAIN_ARGS)
 	$(PY) -m biped_switch.evaluate single --trials 500
 	$(PY) -m biped_switch.evaluate multi --trials 2500
 	$(PY) -m biped_switch.evaluate retrain-cost
