@@ -142,7 +142,7 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         # needs a few chunks at a new level (session 8, curriculum.py)
         difficulty_step=0.1,
         guide_step=0.1,
-        guide_min_step=0.025,  # below 2 * guide_step, notches halve down to this (0.1, 0.05,
+        guide_min_step=0.025,  # the last notches shrink down to this (guide_notch 0.5: 0.1, 0.05,
         # 0.025, 0): jumps fell 12-27% at guides 0.1 and 100% at 0 (= guide_step disables)
         guide_notch=0.5,  # the fraction of the guide scale those last notches take, in (0, 1):
         # 0.5 halves; mixed trains with 0.25 (train --guide-notch; curriculum.py)
