@@ -395,22 +395,18 @@ def main(argv=None) -> int:
         cfg.warm_start = a.warm_start
     cfg.stop_when_done = not a.keep_training
     run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
-    if a.learning_rate is not None:
-        if not a.learning_rate > 0:
-            p.error(f"--learning-rate must be > 0, got {a.learning_rate}")
-        cfg.ppo.learning_rate = a.learning_rate
-    elif (lr := saved_setting(run_dir, "ppo", "learning_rate")) is not None \
-            and lr != cfg.ppo.learning_rate:
-        print(f"keeping the run's learning rate {lr:g} (config.json; --learning-rate changes it)")
-        cfg.ppo.learning_rate = lr
-    if a.guide_notch is not None:
-        if not 0.0 < a.guide_notch < 1.0:
-            p.error(f"--guide-notch must be in (0, 1), got {a.guide_notch}")
-        cfg.curriculum.guide_notch = a.guide_notch
-    elif (gn := saved_setting(run_dir, "curriculum", "guide_notch")) is not None \
-            and gn != cfg.curriculum.guide_notch:
-        print(f"keeping the run's guide notch {gn:g} (config.json; --guide-notch changes it)")
-        cfg.curriculum.guide_notch = gn
+    # a flag's value, else the resumed run's own (config.json), else the default
+    for flag, section, key, ok, must in (
+            ("--learning-rate", "ppo", "learning_rate", lambda v: v > 0, "> 0"),
+            ("--guide-notch", "curriculum", "guide_notch", lambda v: 0 < v < 1, "in (0, 1)")):
+        given = getattr(a, flag[2:].replace("-", "_"))
+        if given is not None:
+            if not ok(given):
+                p.error(f"{flag} must be {must}, got {given}")
+            cfg[section][key] = given
+        elif (v := saved_setting(run_dir, section, key)) is not None and v != cfg[section][key]:
+            print(f"keeping the run's {key.replace('_', ' ')} {v:g} (config.json; {flag} changes it)")
+            cfg[section][key] = v
     if a.total_steps is not None:
         cfg.total_timesteps = a.total_steps
     if a.chunk_steps is not None:
