@@ -185,6 +185,7 @@ def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
             learning_rate=3e-4, entropy_cost=1e-3, value_cost=0.5, discounting=0.99,
             gae_lambda=0.95, clipping_epsilon=0.2, reward_scaling=0.1, max_grad_norm=1.0,
             init_action_std=0.5,
+            max_action_std=0.0,  # a cap on each joint's std [fraction of the motor limit]; 0: none
         ),
         network=config_dict.create(policy_hidden=(256, 256), value_hidden=(256, 256),
                                    encoding="pool", pool=(2, 8), hm_hidden=(128, 64)),

@@ -10,7 +10,10 @@ One iteration: `unroll_length` steps of `num_envs` envs (auto-reset to fresh epi
 current curriculum values; an episode that reaches `episode_length` steps is truncated, and its
 last step is masked out of the advantages, as Brax does), GAE, then `num_updates_per_batch` epochs
 of `num_minibatches` clipped-surrogate minibatch updates (Adam, global-norm clipping). Policy: a
-Gaussian with a state-independent log std; the env clips actions to [-1, 1]. Observation
+Gaussian with a state-independent log std; the env clips actions to [-1, 1]. `max_action_std`
+(0: none) holds each joint's std at or under a cap by projecting the log std after every update
+and before every rollout: the entropy bonus otherwise drives up the std of joints whose noise the
+guides absorb (README, session 22). Observation
 normalisation: running mean/std of the robot state and the extras (the heightmap, already in
 [0, 1], is fed raw so that a policy trained on flat ground meets steps without exploding inputs);
 the statistics are updated after each iteration's updates, so the updates see the same inputs
@@ -165,6 +168,13 @@ def make_train(cfg, env) -> Trainer:
         raise ValueError(f"the training env's observation ({env.observation_size}) must be the "
                          f"policy observation ({obs_size}): train without detector_one_hot")
     ep_len = int(cfg.episode_length)
+    max_log_std = float(np.log(p.max_action_std)) if p.get("max_action_std", 0.0) > 0 else None
+
+    def cap_std(params):
+        """`params` with the log std projected under the cap (the optimiser's step can cross it)."""
+        if max_log_std is None:
+            return params
+        return {**params, "log_std": jnp.minimum(params["log_std"], max_log_std)}
 
     def init(rng) -> TrainState:
         k_pi, k_vf = jax.random.split(rng)
@@ -172,7 +182,7 @@ def make_train(cfg, env) -> Trainer:
         params = {"policy": pi.init(k_pi, dummy), "value": vf.init(k_vf, dummy),
                   "log_std": jnp.full((env.action_size,), np.log(p.init_action_std), jnp.float32)}
         norm = Normalizer(jnp.zeros(obs_size), jnp.ones(obs_size), jnp.asarray(1e-4))
-        return TrainState(params, tx.init(params), norm)
+        return TrainState(cap_std(params), tx.init(params), norm)
 
     def reset_envs(rng, curr):
         keys = jax.random.split(rng, n_envs)
@@ -185,6 +195,7 @@ def make_train(cfg, env) -> Trainer:
                             a, b)
 
     def iteration(ts: TrainState, envs, rng, curr):
+        ts = ts._replace(params=cap_std(ts.params))  # a run resumed under a new cap
         env_state, ep_t, ep_ret = envs
         k_fresh, k_roll, k_sgd = jax.random.split(rng, 3)
         fresh, _, _ = reset_envs(k_fresh, curr)
@@ -256,7 +267,7 @@ def make_train(cfg, env) -> Trainer:
                 (_, info), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
                 grads = pmean(grads)  # one update from every device's minibatch: params stay equal
                 upd, opt_state = tx.update(grads, opt_state, params)
-                return (optax.apply_updates(params, upd), opt_state), info
+                return (cap_std(optax.apply_updates(params, upd)), opt_state), info
 
             return jax.lax.scan(mb_step, (params, opt_state), mbs)
 
@@ -273,6 +284,7 @@ def make_train(cfg, env) -> Trainer:
         metrics.update({
             "train/reward_per_step": pmean(jnp.mean(tr["reward"])),
             "train/action_std": jnp.mean(jnp.exp(params["log_std"])),
+            "train/action_std_max": jnp.max(jnp.exp(params["log_std"])),  # the noisiest joint
             "episode/count": n_end,
             "episode/sum_reward": ep_mean(tr["ep_return"]),
             "episode/length": ep_mean(tr["ep_length"].astype(jnp.float32)),

@@ -337,6 +337,10 @@ def main(argv=None) -> int:
                    help="the fraction of the guide scale each of the curriculum's last guide "
                         "notches takes, in (0, 1) (default: a resumed run's own, else 0.5, "
                         "which halves; mixed trains with 0.25: curriculum.py)")
+    p.add_argument("--max-action-std", type=float, default=None, metavar="STD",
+                   help="cap each joint's exploration std at STD [fraction of the motor limit] "
+                        "(default: a resumed run's own, else 0: no cap; mixed trains with 0.5 "
+                        "from session 22: README, Training)")
     p.add_argument("--warm-start", default=None, metavar="CKPT_OR_RUN",
                    help="start a new run from the parameters of a checkpoint folder, a run "
                         "folder's latest checkpoint, or a run name (e.g. walk_stand: runs/, then "
@@ -398,7 +402,8 @@ def main(argv=None) -> int:
     # a flag's value, else the resumed run's own (config.json), else the default
     for flag, section, key, ok, must in (
             ("--learning-rate", "ppo", "learning_rate", lambda v: v > 0, "> 0"),
-            ("--guide-notch", "curriculum", "guide_notch", lambda v: 0 < v < 1, "in (0, 1)")):
+            ("--guide-notch", "curriculum", "guide_notch", lambda v: 0 < v < 1, "in (0, 1)"),
+            ("--max-action-std", "ppo", "max_action_std", lambda v: v >= 0, ">= 0 (0: no cap)")):
         given = getattr(a, flag[2:].replace("-", "_"))
         if given is not None:
             if not ok(given):

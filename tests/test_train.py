@@ -380,6 +380,42 @@ def test_guide_notch_flag_names_a_bad_value(capsys):
     assert "--guide-notch must be in (0, 1), got 1.0" in capsys.readouterr().err
 
 
+def test_action_std_cap_projects_the_log_std_after_updates_and_on_resume():
+    """`ppo.max_action_std`: a fresh policy starts at the cap when its initial std is above it;
+    a restored log std above the cap (a run resumed under a new cap) is cut to it before the
+    rollout and stays there through the updates, and the joints below the cap move only by
+    Adam's steps (at most lr per update, 8 updates here)."""
+    cfg = _tiny_cfg()
+    cfg.ppo.update(max_action_std=0.3, init_action_std=0.5)
+    env = train_lib.train_env(cfg)
+    trainer = ppo.make_train(cfg, env)
+    ts = trainer.init(jax.random.PRNGKey(0))
+    np.testing.assert_allclose(np.exp(ts.params["log_std"]), 0.3, rtol=1e-6)
+    before = np.log(np.linspace(0.05, 1.2, 12)).astype(np.float32)  # 0.05, 0.155, ...: 9 above 0.3
+    ts = ts._replace(params={**ts.params, "log_std": jnp.asarray(before)})
+    curr = jnp.asarray((0.0, 1.0, 0.0), jnp.float32)
+    envs = trainer.reset_envs(jax.random.PRNGKey(1), curr)
+    ts2, _, metrics = trainer.iteration(ts, envs, jax.random.PRNGKey(2), curr)
+    after = np.asarray(ts2.params["log_std"])
+    above = before > np.log(0.3)
+    assert above.sum() == 9
+    n_updates = cfg.ppo.num_minibatches * cfg.ppo.num_updates_per_batch
+    max_move = 1.01 * cfg.ppo.learning_rate * n_updates  # Adam: about lr per update, at most
+    # cut to the cap, then free to move down from it by the updates, never up past it
+    assert np.all(after[above] <= np.log(0.3) + 1e-6)
+    assert np.all(after[above] >= np.log(0.3) - max_move)
+    assert np.all(np.abs(after[~above] - before[~above]) <= max_move)
+    assert float(metrics["train/action_std_max"]) == pytest.approx(np.exp(after.max()), rel=1e-5)
+    assert float(metrics["train/action_std_max"]) <= 0.3 * (1 + 1e-6)
+    assert float(metrics["train/action_std"]) == pytest.approx(np.mean(np.exp(after)), rel=1e-5)
+
+
+def test_action_std_flag_names_a_bad_value(capsys):
+    with pytest.raises(SystemExit):
+        train_lib.main(["--policy", "mixed", "--max-action-std", "-0.1"])
+    assert "--max-action-std must be >= 0 (0: no cap), got -0.1" in capsys.readouterr().err
+
+
 def test_run_config_reads_back_what_the_run_was_made_with(tmp_path):
     """A run's config.json comes back over today's defaults: the CPU preset's track bank and
     curriculum-check size, a changed curriculum value; a key the run predates (push_magnitude,
