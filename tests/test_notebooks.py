@@ -290,7 +290,7 @@ def run_notebook(name: str, results: pathlib.Path, env: dict, monkeypatch, runs=
 
 
 # ----------------------------------------------------------------------------- tests
-def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
+def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch, tmp_path):
     """_common reads the synthetic tree back: tables hold the numbers, stand-ins are flagged."""
     import matplotlib
 
@@ -332,10 +332,14 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch):
     assert C.runs_root() == REPO / "runs" and C.train_command()[-1] == "runs"
     assert C.run_roots() == [REPO / "runs", POLICY_RUNS]  # runs/, then the committed runs
     # Table III: hours whose runs cannot be found are not taken for complete runs
+    # (the synthetic runs hold no mixed run, and the committed models/policies/ must not stand in)
+    monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "no_committed_policies")
     t3 = json.loads((synthetic / "table3" / "table3.json").read_text())
     runs3, checks = table3.table3_checks(t3, synthetic, synthetic_runs)
     assert runs3 == synthetic_runs and checks["dqn"] == []
-    assert checks["end_to_end"] and checks["ours"]
+    for m in ("end_to_end", "ours"):  # both synthetic rows have a "policy" part: the mixed run
+        assert any("policy: no run under" in n and "cannot tell whether it finished" in n
+                   for n in checks[m]), checks[m]
     t3_reasons = table3.table3_provenance(t3, synthetic / "table3" / "table3.json", synthetic,
                                      synthetic_runs)
     assert any("no total hours for dqn" in r for r in t3_reasons)
