@@ -1,12 +1,12 @@
-"""biped_switch: composing DRL locomotion policies on box-terrain tracks, on MuJoCo MJX.
+"""biped_switch: composing DRL locomotion policies on box-terrain tracks, on MuJoCo (C engine or MJX).
 
-One module per stage, in layers whose imports flow one way (README, Layout): settings (config,
-paper), the world (terrain, model, heightmap, gait, curriculum, native), the environment (env),
-building blocks (networks, ppo, rollout, estimator, runs, stats), policies, switching and
-baselines (switching, sweep, dqn), results (table1, table2, fig5, table3), and the command lines
-(train, evaluate, demo, render, bench).
+Sub-packages name the stages, and each imports only those listed before it:
+`simulation` (terrain, model, heightmap, gait, physics, env, rollout, render), `learning`
+(networks, PPO, curriculum, DQN, checkpoints, run folders, policies), `switching` (rules, sweeps,
+lookup tables, estimators), `evaluation` (Table I, Table II), `reports` (tables, figures, stats,
+provenance: no JAX import). Under them: `config`, `names`, `paths` and `paper`, which import
+nothing of the package. Over them: the command lines (`train`, `sweep`, `estimator`, `dqn`,
+`evaluate`, `demo`, `render`, `bench`, `terrain`), thin files of argument parsing and calls.
 """
-
-from biped_switch import _compat  # noqa: F401  (jax.device_put_replicated shim for brax)
 
 __version__ = "0.1.0"

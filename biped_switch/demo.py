@@ -27,15 +27,17 @@ import time
 import jax
 import numpy as np
 
-from biped_switch import render
+from biped_switch.simulation import render
 
 render._gl_default()  # the GL backend is fixed when mujoco is first imported: before env's
 
-from biped_switch import env as env_lib  # noqa: E402
-from biped_switch import fig5  # noqa: E402
-from biped_switch import policies as pol  # noqa: E402
-from biped_switch import runs as runs_lib  # noqa: E402
-from biped_switch import table2  # noqa: E402
+from biped_switch.simulation import env as env_lib  # noqa: E402
+from biped_switch.evaluation import trace as fig5  # noqa: E402
+from biped_switch.reports import fig5 as fig5_report  # noqa: E402
+from biped_switch.learning import policies as pol  # noqa: E402
+from biped_switch.learning import runs as runs_lib  # noqa: E402
+from biped_switch.evaluation import multi as table2  # noqa: E402
+from biped_switch.reports import table2 as table2_report
 from biped_switch.config import MULTI_TRACK_SEED, default_env_config  # noqa: E402
 
 
@@ -86,7 +88,7 @@ def main(argv=None) -> int:
         methods, a.trials, a.trials, a.horizon_s, a.seed, a.runs, None, a.estimators,
         a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=0.0, dqn_dir=a.dqn,
         n_artifacts=a.n_artifacts, backend=a.backend)
-    md = table2.table2_markdown(rows)
+    md = table2_report.table2_markdown(rows)
     if in_training:
         md = (f"POLICIES IN TRAINING, NOT RESULTS: {' | '.join(in_training)}; {a.trials} trials "
               f"of {a.n_artifacts}-artifact tracks, {a.horizon_s:.0f} s limit.\n\n" + md)
@@ -104,7 +106,7 @@ def main(argv=None) -> int:
         track = table2.trial_track(setup, 0)
         title = "demo: estimator switching, trial 0" + (" (policies in training)"
                                                         if in_training else "")
-        fig5.plot_trial(rec, track, out / "fig5_demo.png", title)
+        fig5_report.plot_trial(rec, track, out / "fig5_demo.png", title)
         summary["fig5"] = str(out / "fig5_demo.png")
         print(f"wrote {out / 'fig5_demo.png'}")
         if not a.no_video:

@@ -51,22 +51,20 @@ import time
 import jax
 import numpy as np
 
-from biped_switch import env as env_lib
+from biped_switch.simulation import env as env_lib
 from biped_switch.config import EVAL_TRACK_SEED, MULTI_TRACK_SEED
-from biped_switch.fig5 import plot_trial, trace_trial
+from biped_switch.reports.fig5 import plot_trial
+from biped_switch.evaluation.trace import trace_trial
 from biped_switch.paper import TABLE2_FAIL_ORDER
-from biped_switch.policies import POLICY_NAMES
-from biped_switch.runs import BASELINE_DIR, find_policy
-from biped_switch.table1 import (HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, table1_markdown,
-                                 merge_rows as merge_table1)
-from biped_switch.fig4b import plot_switch_distances
-from biped_switch.table2 import (BASELINES, MULTI_METHODS, available_methods, claims_markdown,
-                                 evaluate_multi, failures_by_context, failures_markdown,
-                                 merge_rows, mixed_track, paper_claims,
-                                 switch_outcomes, switch_summary, switches_markdown,
-                                 table2_markdown, trial_track)
-from biped_switch.table3 import retrain_cost, table3_markdown
-from biped_switch.terrain import ARTIFACT_KINDS
+from biped_switch.learning.policies import POLICY_NAMES
+from biped_switch.learning.runs import BASELINE_DIR, find_policy
+from biped_switch.evaluation.single import (HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, merge_rows as merge_table1)
+from biped_switch.reports.table1 import table1_markdown
+from biped_switch.reports.fig4b import plot_switch_distances
+from biped_switch.evaluation.multi import (BASELINES, MULTI_METHODS, available_methods, evaluate_multi, merge_rows, mixed_track, trial_track)
+from biped_switch.reports.table2 import (claims_markdown, failures_by_context, failures_markdown, paper_claims, switch_outcomes, switch_summary, switches_markdown, table2_markdown)
+from biped_switch.reports.table3 import retrain_cost, table3_markdown
+from biped_switch.simulation.terrain import ARTIFACT_KINDS
 
 
 

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from biped_switch.terrain import ARTIFACT_KINDS
+from biped_switch.names import ARTIFACT_KINDS
 
 
 def wilson_ci(successes: float, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -93,3 +93,13 @@ def join_rows(old: dict | None, rows: list[dict], settings: dict, trial_keys, ke
     kept = [r for r in old.get("rows", []) if key(r) not in new]
     rank = {k: i for i, k in enumerate(order)}
     return sorted(kept + list(rows), key=lambda r: rank.get(key(r), len(rank)))
+
+
+def smoothed_success_pct(rate: np.ndarray, count: np.ndarray, bins: int) -> np.ndarray:
+    """% success per 1 cm bin as a count-weighted moving mean over `bins` bins (the paper's Fig. 4b,
+    drawn by sweep.plot_switch_success and the notebook); NaN where no point is near."""
+    k = np.ones(bins)
+    s = np.convolve(np.nan_to_num(rate * count), k, "same")
+    n = np.convolve(count, k, "same")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return 100 * s / n

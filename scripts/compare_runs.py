@@ -16,7 +16,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
-from biped_switch.runs import curve_series  # noqa: E402
+from biped_switch.learning.runs import curve_series  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -22,11 +22,11 @@ import jax
 import jax.numpy as jnp
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent))
-from biped_switch import runs as runs_lib  # noqa: E402
-from biped_switch import train as train_lib  # noqa: E402
-from biped_switch.env import PUSH_MAGNITUDES  # noqa: E402
-from biped_switch.policies import load_policy  # noqa: E402
-from biped_switch.rollout import summarize  # noqa: E402
+from biped_switch.learning import runs as runs_lib  # noqa: E402
+from biped_switch.learning import trainer as train_lib  # noqa: E402
+from biped_switch.simulation.env import PUSH_MAGNITUDES  # noqa: E402
+from biped_switch.learning.policies import load_policy  # noqa: E402
+from biped_switch.simulation.rollout import summarize  # noqa: E402
 
 
 def main(argv=None) -> int:

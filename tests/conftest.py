@@ -19,7 +19,7 @@ import pytest
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 
-from biped_switch import env as env_lib  # noqa: E402
+from biped_switch.simulation import env as env_lib  # noqa: E402
 
 B = 4  # envs in the shared batch
 MJX_TORQUE = {"backend": "mjx", "action": "torque", "phase_obs": False}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from biped_switch import terrain
+from biped_switch.simulation import terrain
 
 NO_GROUND = -1e3
 

@@ -9,10 +9,11 @@ import types
 
 import jax
 
-from biped_switch import ppo
-from biped_switch import runs as runs_lib
+from biped_switch.learning import ppo
+from biped_switch.learning import checkpoints as ckpt_lib
+from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_env_config, default_train_config
-from biped_switch.env import STATE_SIZE
+from biped_switch.simulation.env import STATE_SIZE
 
 TINY_NETWORK = {"policy_hidden": (8,), "value_hidden": (8,), "hm_hidden": (4,)}
 DONE = {"stage": 3, "stage_name": "pushes", "difficulty": 1.0, "guide_scale": 0.0, "push_scale": 1.0}
@@ -37,4 +38,4 @@ def fake_policy_run(runs: pathlib.Path, policy: str, init: str = "stand", env: d
     (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))
     progress = {"step": step, "wall_s": 1.0, "curriculum": DONE, "curriculum_before": DONE,
                 "total_steps": step, "backend": "none", "device": "cpu", "n_devices": 1}
-    return runs_lib.save_ppo(run_dir, step, state, progress)
+    return ckpt_lib.save_ppo(run_dir, step, state, progress)

@@ -15,9 +15,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_switch import env as env_lib
-from biped_switch import gait, native, terrain
-from biped_switch import model as model_lib
+from biped_switch.simulation import env as env_lib
+from biped_switch.simulation import gait
+from biped_switch.simulation import native
+from biped_switch.simulation import terrain
+from biped_switch.simulation import model as model_lib
 from conftest import B, DIFFICULTIES, MJX_TORQUE, TRACK_IDS, batch_reset
 from helpers import terrain_height_np
 

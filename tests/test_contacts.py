@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
-from biped_switch import env as env_lib
-from biped_switch import model as model_lib
-from biped_switch import terrain
+from biped_switch.simulation import env as env_lib
+from biped_switch.simulation import model as model_lib
+from biped_switch.simulation import terrain
 from biped_switch.config import default_model_config
 
 from helpers import env_boxes, quat_yaw, terrain_height_np

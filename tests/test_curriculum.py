@@ -4,7 +4,7 @@ import jax
 import numpy as np
 import pytest
 
-from biped_switch import curriculum as cl
+from biped_switch.learning import curriculum as cl
 from biped_switch.config import default_curriculum_config
 
 CFG = default_curriculum_config()
@@ -207,7 +207,7 @@ def test_dict_round_trip():
 
 
 def test_curve_series_after_a_restart():
-    from biped_switch.runs import curve_series
+    from biped_switch.learning.runs import curve_series
 
     rows = [{"step": "1", "r": "1"}, {"step": "2", "r": "2"}, {"step": "3", "r": ""},
             {"step": "4", "r": "4"},  # chunk abandoned by a restart at step 2

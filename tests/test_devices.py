@@ -11,7 +11,8 @@ import textwrap
 SCRIPT = textwrap.dedent("""
     import json
     import jax, numpy as np
-    from biped_switch import ppo, train
+    from biped_switch.learning import ppo
+    from biped_switch.learning import trainer as train
     from biped_switch.config import default_train_config
     assert jax.local_device_count() == 2, jax.devices()
     cfg = default_train_config("cpu")

@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 from brax.envs.base import Env, State
 
-from biped_switch import dqn
-from biped_switch import policies as pol
-from biped_switch import runs as runs_lib
+from biped_switch.learning import dqn
+from biped_switch.learning import dqn_train as dqn_train
+from biped_switch.learning import policies as pol
+from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_dqn_config
-from biped_switch.env import STATE_SIZE
+from biped_switch.simulation.env import STATE_SIZE
+from biped_switch.reports import curves
 
 GRID = (2, 2)  # the fake env's heightmap
 P_OBS = STATE_SIZE + GRID[0] * GRID[1]  # 55 policy columns
@@ -137,27 +139,27 @@ def _rows(ids, obs_size):
 
 def test_buffer_wraps_and_overwrites_the_oldest():
     size = STATE_SIZE + 2
-    buf = dqn.buffer_init(5, size)
+    buf = dqn_train.buffer_init(5, size)
     assert buf["obs_f32"].dtype == jnp.float32 and buf["obs_f16"].dtype == jnp.float16
     assert buf["obs_f32"].shape == (5, STATE_SIZE) and buf["obs_f16"].shape == (5, 2)
-    buf = dqn.buffer_add(buf, _rows([0, 1, 2], size))
+    buf = dqn_train.buffer_add(buf, _rows([0, 1, 2], size))
     assert int(buf["ptr"]) == 3 and int(buf["size"]) == 3
-    buf = jax.jit(dqn.buffer_add)(buf, _rows([3, 4, 5], size))
+    buf = jax.jit(dqn_train.buffer_add)(buf, _rows([3, 4, 5], size))
     assert int(buf["ptr"]) == 1 and int(buf["size"]) == 5
-    rows = dqn.buffer_rows(buf, jnp.arange(5))
+    rows = dqn_train.buffer_rows(buf, jnp.arange(5))
     want = [5, 1, 2, 3, 4]  # transition 0 (the oldest) overwritten by transition 5
     np.testing.assert_array_equal(rows["obs"], _rows(want, size)["obs"])
     np.testing.assert_array_equal(rows["next_obs"], _rows(want, size)["next_obs"])
     for k in ("action", "reward", "done"):
         np.testing.assert_array_equal(rows[k], _rows(want, size)[k])
     with pytest.raises(ValueError):
-        dqn.buffer_add(buf, _rows(range(6), size))
+        dqn_train.buffer_add(buf, _rows(range(6), size))
 
 
 def test_buffer_samples_only_filled_rows():
     size = STATE_SIZE + 3
-    buf = dqn.buffer_add(dqn.buffer_init(8, size), _rows([10, 11], size))
-    s = dqn.buffer_sample(buf, jax.random.PRNGKey(0), 300)
+    buf = dqn_train.buffer_add(dqn_train.buffer_init(8, size), _rows([10, 11], size))
+    s = dqn_train.buffer_sample(buf, jax.random.PRNGKey(0), 300)
     assert s["obs"].shape == (300, size) and s["next_obs"].shape == (300, size)
     assert s["obs"].dtype == jnp.float32 and s["action"].shape == (300,)
     ids = np.asarray(s["obs"][:, 0])
@@ -199,7 +201,7 @@ def test_input_norm_leaves_the_phase_clock_untouched():
 def test_sizes_follow_the_env_phase_clock():
     """The policies read env.policy_observation_size columns (with the phase clock); the Q-network
     reads those and the one-hot, and its heightmap encoder exactly the 2400 heightmap values."""
-    from biped_switch import env as env_lib
+    from biped_switch.simulation import env as env_lib
 
     for phase in (True, False):
         env = env_lib.make_env("mixed", n_tracks=1, phase_obs=phase, detector_one_hot=True)
@@ -272,7 +274,7 @@ COLLECT_ENV = FakeEnv(end_step=5)
 
 @functools.cache
 def _collect_pool():
-    return dqn.reset_pool(COLLECT_ENV, jax.random.PRNGKey(7), COLLECT_ENV.bank.size)
+    return dqn_train.reset_pool(COLLECT_ENV, jax.random.PRNGKey(7), COLLECT_ENV.bank.size)
 
 
 @jax.jit
@@ -281,12 +283,12 @@ def _collect(col, key, oracle, max_steps):
     `oracle` is 1, else always walk. One compile serves both collection tests."""
     suite = index_suite()
     q = lambda prm, x: prm * oracle_q(None, x) + (1.0 - prm) * walk_q(None, x)  # noqa: E731
-    return dqn.collect_step(COLLECT_ENV, suite.apply, suite.params, q, oracle, col, _collect_pool(),
+    return dqn_train.collect_step(COLLECT_ENV, suite.apply, suite.params, q, oracle, col, _collect_pool(),
                             key, 0.0, 2.0, 0.5, max_steps)
 
 
 def _collector(max_steps, oracle):
-    col = dqn.collector_init(_collect_pool(), 4)
+    col = dqn_train.collector_init(_collect_pool(), 4)
     return col, lambda c, key: _collect(c, key, jnp.float32(oracle), jnp.int32(max_steps))
 
 
@@ -341,7 +343,7 @@ def test_collect_step_time_out_bootstraps_and_bonus_needs_the_right_policy():
 def test_dqn_rollout_on_fake_env():
     env = FakeEnv(end_step=7)
     suite = index_suite()
-    run = jax.jit(lambda rng, ids, horizon: dqn.dqn_rollout(
+    run = jax.jit(lambda rng, ids, horizon: dqn_train.dqn_rollout(
         env, suite.apply, suite.params, oracle_q, None, rng, 3, horizon, track_ids=ids, chunk=3),
         static_argnums=2)
     res = jax.device_get(run(jax.random.PRNGKey(0), jnp.array([0, 1, 2]), 20))
@@ -385,7 +387,7 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     env, suite = FakeEnv(end_step=6), index_suite()
     cfg = _tiny_cfg()
     lines = []
-    p1 = dqn.train_dqn(cfg, tmp_path, stand_in="walk", max_chunks=1, print_fn=lines.append,
+    p1 = dqn_train.train_dqn(cfg, tmp_path, stand_in="walk", max_chunks=1, print_fn=lines.append,
                        env=env, suite=suite)
     # one chunk = 2 calls of 5 iterations of 4 envs; the buffer holds >= 20 from iteration 5 on
     assert p1["step"] == 40 and p1["n_updates"] == 6 and p1["norm_ready"]
@@ -408,11 +410,11 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     saved = json.loads((ckpt / "progress.json").read_text())
     assert saved["step"] == 40 and saved["total_env_steps"] == 120
     assert p1["backend"] == "fake" and p1["env_overrides"] == {}
-    _, q1 = dqn.load_dqn(tmp_path, Q_IN)
+    _, q1 = dqn_train.load_dqn(tmp_path, Q_IN)
     assert not np.allclose(np.asarray(q1["norm"]["std"]), 1.0)  # the frozen normaliser was saved
     with pytest.raises(ValueError, match=f"reads {Q_IN} input columns, the env gives {Q_IN + 2}"):
-        dqn.load_dqn(tmp_path, Q_IN + 2)  # e.g. a suite with the phase clock
-    p2 = dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite)
+        dqn_train.load_dqn(tmp_path, Q_IN + 2)  # e.g. a suite with the phase clock
+    p2 = dqn_train.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite)
     # resumed: 2 more chunks; the empty buffer refills (4 iterations) before updates resume
     assert p2["step"] == 120 and p2["n_updates"] == 6 + (20 - 4) and p2["wall_s"] > p1["wall_s"]
     assert p2["total_env_steps"] == p2["step"]  # finished
@@ -421,10 +423,10 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     assert p2["session_setup_s"] == 0 and p1["setup_s_total"] < p2["setup_s_total"] < p2["wall_s"]
     x = np.linspace(-1, 1, 3 * Q_IN, dtype=np.float32).reshape(3, Q_IN)
     _check_resumed_run(tmp_path, cfg, env, suite.apply, lines, 120, q1, x)
-    assert dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite) == {}  # done
+    assert dqn_train.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=suite) == {}  # done
     # the committed copy (models/baselines/ in the CLI): the latest checkpoint only, the curves;
     # a fresh run folder resumes from it
-    out = runs_lib.commit_run(tmp_path, tmp_path / "committed" / "dqn_stand", dqn.plot_curves)
+    out = runs_lib.commit_run(tmp_path, tmp_path / "committed" / "dqn_stand", curves.dqn_curves)
     assert [c.name for c in (out / "checkpoints").iterdir()] == [f"{120:012d}"]
     with (out / "metrics.csv").open() as f:  # one greedy evaluation per chunk
         assert [int(r["step"]) for r in csv.DictReader(f) if r.get("eval_success")] == [40, 80, 120]
@@ -433,7 +435,7 @@ def test_train_dqn_checkpoints_resumes_and_loads(tmp_path):
     runs_lib.restore_committed(fresh, lines.append, tmp_path / "committed")
     assert runs_lib.read_progress(runs_lib.latest_checkpoint(fresh))["step"] == 120
     assert "resuming from the committed" in lines[-1]
-    assert dqn.train_dqn(cfg, fresh, print_fn=lines.append, env=env, suite=suite) == {}
+    assert dqn_train.train_dqn(cfg, fresh, print_fn=lines.append, env=env, suite=suite) == {}
 
 
 def test_run_loop_syncs_target_every_period_and_follows_epsilon():
@@ -444,7 +446,7 @@ def test_run_loop_syncs_target_every_period_and_follows_epsilon():
     env, suite = FakeEnv(end_step=6), index_suite()
     cfg = _tiny_cfg(log_every=1, updates_per_collect=3, target_update_period=4)
     cfg.epsilon.update(start=1.0, end=0.05, decay_steps=600)
-    fns = dqn.make_train_fns(cfg, env, suite.apply)
+    fns = dqn_train.make_train_fns(cfg, env, suite.apply)
     pool = fns.reset_pool(jax.random.PRNGKey(1))
     ts = fns.init(jax.random.PRNGKey(0), pool)
     net = lambda p: jax.tree.leaves(jax.device_get(p["net"]))  # noqa: E731
@@ -483,12 +485,12 @@ def _check_resumed_run(run_dir, cfg, env, apply, lines, final_step, q1, x):
     step order, and a saved Q-net trained on from the first chunk's `q1` with its normaliser kept."""
     assert any(line.startswith("resuming") for line in lines)
     assert any("steps/s" in line and "left ~" in line for line in lines)
-    fns = dqn.make_train_fns(cfg, env, apply)
+    fns = dqn_train.make_train_fns(cfg, env, apply)
     assert fns.run._cache_size() == 1  # the resumed run reused the compiled call
     rows = (run_dir / "metrics.csv").read_text().splitlines()
     steps = [float(r.split(",")[0]) for r in rows[1:]]
     assert steps == sorted(steps) and steps[-1] == final_step
-    q_apply, q2 = dqn.load_dqn(run_dir)
+    q_apply, q2 = dqn_train.load_dqn(run_dir)
     q_apply = jax.jit(q_apply)
     out = np.asarray(q_apply(q2, x))
     assert out.shape == (x.shape[0], 4) and np.all(np.isfinite(out))
@@ -509,12 +511,12 @@ def test_collection_and_update_on_the_real_env(env, fns, batch0, traces):
     fns["step"](batch0, jnp.zeros((4, 12), jnp.float32))  # the fixture's own argument types
     q_init, q_apply = dqn.make_q(types.SimpleNamespace(hm_hidden=(4,), hidden=(16,)), p - STATE_SIZE)
     params = jax.jit(q_init, static_argnums=1)(jax.random.PRNGKey(0), p + 3)
-    act = jax.jit(lambda col, key: dqn.collect_act(env, zero.apply, zero.params, q_apply, params,
+    act = jax.jit(lambda col, key: dqn_train.collect_act(env, zero.apply, zero.params, q_apply, params,
                                                    col, batch0, key, 0.5))
-    record = jax.jit(lambda col, rec, nxt: dqn.collect_record(env, col, rec, nxt, 1.0, 0.1, 3000))
-    add = jax.jit(dqn.buffer_add)
-    buf = jax.jit(dqn.buffer_init, static_argnums=(0, 1))(16, p + 3)
-    col = dqn.collector_init(batch0, 4)
+    record = jax.jit(lambda col, rec, nxt: dqn_train.collect_record(env, col, rec, nxt, 1.0, 0.1, 3000))
+    add = jax.jit(dqn_train.buffer_add)
+    buf = jax.jit(dqn_train.buffer_init, static_argnums=(0, 1))(16, p + 3)
+    col = dqn_train.collector_init(batch0, 4)
     for i in range(3):
         col, rec, action = act(col, jax.random.PRNGKey(i))
         col, tr, st = record(col, rec, fns["step"](col.state, action))
@@ -524,7 +526,7 @@ def test_collection_and_update_on_the_real_env(env, fns, batch0, traces):
     assert np.all(np.isin(np.asarray(col.state.info["track_id"]), [0, 1, 2, 3]))
     np.testing.assert_allclose(np.asarray(col.state.info["time_s"]), 0.06, atol=1e-5)  # 3 steps
     np.testing.assert_array_equal(col.ep_len, 3)
-    rows = jax.device_get(dqn.buffer_rows(buf, jnp.arange(12)))
+    rows = jax.device_get(dqn_train.buffer_rows(buf, jnp.arange(12)))
     assert rows["obs"].shape == (12, p + 3)
     assert np.all(np.isfinite(rows["obs"])) and np.all(np.isfinite(rows["next_obs"]))
     # nothing is in detection range at the start: an empty one-hot; walk (0) earns the bonus
@@ -544,7 +546,7 @@ def test_collection_and_update_on_the_real_env(env, fns, batch0, traces):
     opt = dqn.make_optimizer(types.SimpleNamespace(max_grad_norm=10.0, learning_rate=1e-3))
     update = jax.jit(dqn.make_update(q_apply, opt, 0.99, 1.0))
     opt_state, losses, target = opt.init(params["net"]), [], params
-    batch = dqn.buffer_sample(buf, jax.random.PRNGKey(0), 8)
+    batch = dqn_train.buffer_sample(buf, jax.random.PRNGKey(0), 8)
     for i in range(5):
         params, opt_state, m = update(params, target, opt_state, batch)
         losses.append(float(m["loss"]))
@@ -565,7 +567,7 @@ def test_train_dqn_on_the_real_env_checkpoints_resumes_and_loads(env, batch0, tm
                     learning_starts=4, replay_capacity=16, batch_size=4, max_episode_s=0.2)
     pool = jax.tree.map(jnp.asarray, batch0)
     lines = []
-    p1 = dqn.train_dqn(cfg, tmp_path, stand_in="walk", max_chunks=1, print_fn=lines.append,
+    p1 = dqn_train.train_dqn(cfg, tmp_path, stand_in="walk", max_chunks=1, print_fn=lines.append,
                        env=env, suite=zero, pool=pool)
     # one chunk = 2 calls of 3 iterations of 2 envs; the buffer holds >= 4 from iteration 2 on
     assert p1["step"] == 12 and p1["n_updates"] == 5 and p1["norm_ready"]
@@ -575,10 +577,10 @@ def test_train_dqn_on_the_real_env_checkpoints_resumes_and_loads(env, batch0, tm
     assert p1["last"]["episodes"] == 0 and p1["last"]["detected_frac"] == 0.0
     ckpt = tmp_path / "checkpoints" / f"{12:012d}"
     assert json.loads((ckpt / "progress.json").read_text())["step"] == 12
-    _, q1 = dqn.load_dqn(tmp_path)
+    _, q1 = dqn_train.load_dqn(tmp_path)
     assert not np.allclose(np.asarray(q1["norm"]["std"]), 1.0)  # the frozen normaliser was saved
 
-    p2 = dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=zero, pool=pool)
+    p2 = dqn_train.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=zero, pool=pool)
     # resumed: 2 more chunks; the empty buffer refills (1 iteration) before updates resume
     assert p2["step"] == 36 and p2["n_updates"] == 5 + (12 - 1) and p2["wall_s"] > p1["wall_s"]
     last = p2["last"]  # iterations 10..12 after the resume: both envs time out at step 10
@@ -592,4 +594,4 @@ def test_train_dqn_on_the_real_env_checkpoints_resumes_and_loads(env, batch0, tm
     x = np.asarray(jax.tree.map(lambda a: a[:2], batch0).obs)
     x = np.concatenate([x, np.zeros((2, 3), np.float32)], axis=1)
     _check_resumed_run(tmp_path, cfg, env, zero.apply, lines, 36, q1, x)
-    assert dqn.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=zero, pool=pool) == {}
+    assert dqn_train.train_dqn(cfg, tmp_path, print_fn=lines.append, env=env, suite=zero, pool=pool) == {}

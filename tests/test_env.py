@@ -10,10 +10,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_switch import env as env_lib
-from biped_switch import heightmap as hm
-from biped_switch import model as model_lib
-from biped_switch import terrain
+from biped_switch.simulation import env as env_lib
+from biped_switch.simulation import heightmap as hm
+from biped_switch.simulation import model as model_lib
+from biped_switch.simulation import terrain
 from biped_switch.config import default_curriculum_config
 
 from conftest import B, DIFFICULTIES, MJX_TORQUE, TRACK_IDS, actions, index

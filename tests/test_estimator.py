@@ -8,8 +8,9 @@ import jax
 import numpy as np
 import pytest
 
-from biped_switch import env as env_lib
-from biped_switch import estimator as est
+from biped_switch.simulation import env as env_lib
+from biped_switch.switching import estimator as est
+from biped_switch import estimator as estimator_cli
 from biped_switch.config import default_estimator_config
 
 
@@ -239,7 +240,7 @@ def test_cli_end_to_end(tmp_path, capsys):
     (data_dir / "stand").mkdir(parents=True)
     for i, t in enumerate(("jumps", "gaps")):
         np.savez_compressed(data_dir / "stand" / f"{t}.npz", **synthetic_data(n_samples=60, seed=i))
-    rc = est.main(["--init", "stand", "--targets", "jumps", "gaps", "--data", str(data_dir),
+    rc = estimator_cli.main(["--init", "stand", "--targets", "jumps", "gaps", "--data", str(data_dir),
                    "--out", str(out), "--results", str(res), "--epochs", "2", "--batch-size", "64",
                    "--log-every", "1"])
     assert rc == 0
@@ -267,7 +268,7 @@ def test_cli_end_to_end(tmp_path, capsys):
 
 
 def test_cli_names_the_sweep_command_for_missing_data(tmp_path, capsys):
-    rc = est.main(["--init", "random", "--targets", "stairs", "--data", str(tmp_path),
+    rc = estimator_cli.main(["--init", "random", "--targets", "stairs", "--data", str(tmp_path),
                    "--out", str(tmp_path / "m"), "--results", str(tmp_path / "r"), "--epochs", "1"])
     assert rc != 0
     err = capsys.readouterr().err
@@ -279,9 +280,10 @@ def test_estimator_benchmark_cli_prints_one_json_record(capsys):
     """`python -m biped_switch.bench --estimator --json` (`make bench-estimator`) trains on `points`
     random rows and prints one JSON record of what it trained and how fast. The timings are the
     command's output, not assertions here: on a busy machine their order is not guaranteed."""
-    from biped_switch import bench
+    from biped_switch.evaluation import bench
+    from biped_switch import bench as bench_cli
 
-    assert bench.main(["--estimator", "--points", "500", "--epochs", "3", "--json"]) == 0
+    assert bench_cli.main(["--estimator", "--points", "500", "--epochs", "3", "--json"]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert len(out) == 1  # --json: the record alone, on one line
     r = json.loads(out[0])
@@ -297,6 +299,6 @@ def test_estimator_benchmark_cli_prints_one_json_record(capsys):
     # one epoch would time nothing (the first one compiles): refused, as too few points are
     for argv in (["--epochs", "1"], ["--points", "50"]):
         with pytest.raises(SystemExit) as e:
-            bench.main(["--estimator", *argv])
+            bench_cli.main(["--estimator", *argv])
         assert e.value.code == 2
     assert "--estimator needs" in capsys.readouterr().err

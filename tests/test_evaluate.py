@@ -7,15 +7,18 @@ import numpy as np
 import pytest
 
 from biped_switch import config
-from biped_switch import estimator
-from biped_switch import sweep
+from biped_switch.switching import estimator
+from biped_switch.switching import sweep
+from biped_switch.switching import lookup as lookup_lib
 from biped_switch import evaluate as ev
-from biped_switch import runs as runs_lib
+from biped_switch.learning import runs as runs_lib
 from biped_switch import stats
-from biped_switch import table1
-from biped_switch import table2
-from biped_switch import table3
-from biped_switch import terrain
+from biped_switch.evaluation import single as table1
+from biped_switch.reports import table1 as table1_report
+from biped_switch.evaluation import multi as table2
+from biped_switch.reports import table2 as table2_report
+from biped_switch.reports import table3
+from biped_switch.simulation import terrain
 
 
 def test_wilson_interval_hand_values():
@@ -78,20 +81,20 @@ def test_markdown_row_has_paper_figures():
     row = {"policy": "gaps", "init": "random", "n": 4, "distance_pct": 68.75, "distance_ci": [40, 90],
            "success_pct": 50.0, "success_ci": [15, 85], "train_step": 1000,
            "curriculum": {"stage_name": "terrain", "difficulty": 0.3, "guide_scale": 1.0}}
-    md = table1.table1_markdown([row])
+    md = table1_report.table1_markdown([row])
     assert "| gaps | random | 4 | 68.8 (40.0-90.0) | 50.0 (15.0-85.0) | 87.4 | 75.5 |" in md
     row.update(speed_mps=0.61, speed_ci=[0.58, 0.64], horizon_s=85.0, track_seed=123,
                backend="mujoco")
-    md = table1.table1_markdown([row])
+    md = table1_report.table1_markdown([row])
     assert "| 1,000 | - | terrain d=0.3 g=1.0 p=0.0 | 0.61 (0.58-0.64) | 85 | 123 | mujoco |" in md
     row.update(train_h=11.537, curriculum_done=False)
-    assert "| 1,000 | 11.54 | terrain d=0.3 g=1.0 p=0.0, in training |" in table1.table1_markdown([row])
+    assert "| 1,000 | 11.54 | terrain d=0.3 g=1.0 p=0.0, in training |" in table1_report.table1_markdown([row])
     row.update(curriculum={"stage_name": "pushes", "difficulty": 1.0, "guide_scale": 0.0,
                            "push_scale": 1.0}, curriculum_done=True, curriculum_end="push plateau",
                push_held=0.9)
     row.update(warm_start="models/policies/walk_stand/checkpoints/000073506816",
-               full_push=table1.full_push({"curriculum": {"max_push_N": 150.0, "push_duration_s": 0.2}}))
-    md = table1.table1_markdown([row])
+               full_push=runs_lib.full_push({"curriculum": {"max_push_N": 150.0, "push_duration_s": 0.2}}))
+    md = table1_report.table1_markdown([row])
     assert "| pushes d=1.0 g=0.0 p=1.0, done on a push plateau (holds p=0.9) |" in md
     assert md.endswith("\n\n- gaps/random was warm-started from models/policies/walk_stand/"
                        "checkpoints/000073506816 (its parameters and normaliser; `train` without "
@@ -99,14 +102,14 @@ def test_markdown_row_has_paper_figures():
                        "plateau: it holds push 0.90 of the full scale (150 N for 0.2 s), not 1")
     row["warm_start"] = ""
     row.update(curriculum_end="full pushes", push_held=1.0)
-    assert "| pushes d=1.0 g=0.0 p=1.0, done |" in table1.table1_markdown([row])
+    assert "| pushes d=1.0 g=0.0 p=1.0, done |" in table1_report.table1_markdown([row])
 
 
 def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
     """`evaluate single --track-seed N`: trial i runs on track N + i (not on the default
     evaluation tracks), in an env with the policy's env overrides on the chosen backend, and the
     table and JSON say which tracks, backend and horizon it ran with."""
-    from biped_switch import terrain
+    from biped_switch.simulation import terrain
     from policy_runs import fake_policy_run
 
     ckpt = fake_policy_run(tmp_path / "runs", "walk")
@@ -315,7 +318,8 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
 def test_demo_horizon_lets_the_target_speed_finish():
     """Every demo track can be finished at the target speed within the limit (the old fixed 30 s
     on 7-artifact tracks made success impossible), with the 1.4 margin and no more."""
-    from biped_switch import demo, terrain
+    from biped_switch import demo
+    from biped_switch.simulation import terrain
     from biped_switch.config import default_terrain_config
 
     tcfg = default_terrain_config()
@@ -366,7 +370,7 @@ def test_demo_runs_end_to_end_on_the_trained_suite(tmp_path, monkeypatch, capsys
     first, naming the policy and the command that trains it. (About 25 s on 2 busy cores: the
     mujoco backend compiles little; 2 trials of 1-artifact tracks, 4 s limit, no video.)"""
     from biped_switch import demo
-    from biped_switch.model import MODELS_DIR
+    from biped_switch.simulation.model import MODELS_DIR
 
     repo = MODELS_DIR.parent
     paths = ["--runs", str(tmp_path / "no_runs"),  # the committed runs only, not a live runs/
@@ -458,20 +462,20 @@ def _ci_row(method, pct, lo, hi):
 def test_paper_claims_by_hand():
     """Each claim by the 95% CIs on % success: disjoint above = better, overlap = comparable; a
     claim whose rows were not run is "not tested", naming them."""
-    assert table2.compare(_ci_row("a", 50, 45, 55), _ci_row("b", 40, 35, 44.9)) == 1
-    assert table2.compare(_ci_row("a", 50, 45, 55), _ci_row("b", 40, 35, 45.0)) == 0  # touching
-    assert table2.compare(_ci_row("a", 30, 25, 34), _ci_row("b", 40, 35, 45)) == -1
+    assert table2_report.compare(_ci_row("a", 50, 45, 55), _ci_row("b", 40, 35, 44.9)) == 1
+    assert table2_report.compare(_ci_row("a", 50, 45, 55), _ci_row("b", 40, 35, 45.0)) == 0  # touching
+    assert table2_report.compare(_ci_row("a", 30, 25, 34), _ci_row("b", 40, 35, 45)) == -1
     heur = [_ci_row("random", 10, 9, 11), _ci_row("detection", 60, 58, 62),
             _ci_row("lookup", 59, 57, 61), _ci_row("com_over_feet", 66, 64, 68)]
     rows = heur + [_ci_row("estimator", 71, 69, 73), _ci_row("estimator_no_overlap", 1, 0, 2),
                    _ci_row("dqn", 72, 70, 74), _ci_row("end_to_end", 90, 89, 91)]
-    got = {c["claim"].split(" (")[0]: c for c in table2.paper_claims(rows)}  # the paper's table
+    got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}  # the paper's table
     assert [c["verdict"] for c in got.values()] == ["holds"] * 4
     assert "above all 7 other rows" in got["end-to-end is best"]["evidence"]
     rows[3] = _ci_row("com_over_feet", 70, 68, 72)  # overlaps the estimator: not beaten
     rows[6] = _ci_row("dqn", 80, 78, 82)
     rows.append(_ci_row("lookup_context", 90, 88.5, 91.5))  # ties end-to-end
-    got = {c["claim"].split(" (")[0]: c for c in table2.paper_claims(rows)}
+    got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}
     beats = got["the estimator beats every heuristic"]
     assert beats["verdict"] == "fails" and beats["evidence"].endswith("not beaten: com_over_feet")
     assert got["the DQN is comparable to the estimator"]["verdict"] == "fails"
@@ -479,10 +483,10 @@ def test_paper_claims_by_hand():
     e2e = got["end-to-end is best"]
     assert e2e["verdict"] == "fails" and "not beaten: lookup_context 90.0 (88.5-91.5)" in e2e["evidence"]
     assert got["without overlap the estimator collapses"]["verdict"] == "holds"
-    part = table2.paper_claims(heur + [_ci_row("estimator", 71, 69, 73)])
+    part = table2_report.paper_claims(heur + [_ci_row("estimator", 71, 69, 73)])
     assert [c["verdict"] for c in part] == ["holds", "not tested", "not tested", "not tested"]
     assert part[1]["evidence"] == "missing rows: estimator_no_overlap"
-    md = table2.claims_markdown(part)
+    md = table2_report.claims_markdown(part)
     assert md.count("\n") == 5 and "| the DQN is comparable" in md
 
 
@@ -521,13 +525,13 @@ def test_context_parts_fall_back_per_target_to_the_plain_sweeps(tmp_path):
     ctx = [[nan, 0.33, nan], [nan, 0.44, nan], [nan, nan, nan], [nan, 0.55, nan]]
     (look / "lookup_stand.json").write_text(json.dumps(
         {"matrix_m": plain, "tables": {"jumps": {}, "gaps": {}, "stairs": {}}}))
-    assert sweep.context_lookup_missing("stand", look) is None
+    assert lookup_lib.context_lookup_missing("stand", look) is None
     with pytest.raises(FileNotFoundError, match="--context"):
-        sweep.load_context_lookup("stand", look)
+        lookup_lib.load_context_lookup("stand", look)
     (look / "lookup_stand_context.json").write_text(json.dumps(
         {"matrix_m": ctx, "tables": {"gaps": {}}}))
-    assert sweep.context_lookup_missing("stand", look) == []
-    m, used = sweep.load_context_lookup("stand", look)
+    assert lookup_lib.context_lookup_missing("stand", look) == []
+    m, used = lookup_lib.load_context_lookup("stand", look)
     want = np.array([[0.8, 0.33, 0.6], [np.nan, 0.44, 0.4], [0.3, np.nan, 0.2], [0.1, 0.55, np.nan]])
     np.testing.assert_array_equal(m, want)
     assert used == [f"jumps: {look / 'lookup_stand.json'}", f"gaps: {look / 'lookup_stand_context.json'}",
@@ -539,7 +543,7 @@ def test_context_parts_fall_back_per_target_to_the_plain_sweeps(tmp_path):
 
 
 def test_failures_by_context_by_hand():
-    from biped_switch import terrain
+    from biped_switch.simulation import terrain
 
     cfg = config.default_terrain_config(2)
     a = terrain.sequence_track(1, ["jumps", "gaps"], 1.0, cfg)
@@ -555,22 +559,22 @@ def test_failures_by_context_by_hand():
     fell = np.array([1.0, 0.0, 1.0, 1.0])
     kinds = terrain.ARTIFACT_KINDS
     fail_kind = np.array([kinds.index("gaps"), -1, -1, kinds.index("gaps")])
-    out = table2.failures_by_context(tracks, progress, fell, fail_kind)
+    out = table2_report.failures_by_context(tracks, progress, fell, fail_kind)
     assert out["gaps"] == {"jumps": [2, 2], "start": [1, 0]}
     assert out["jumps"] == {"start": [2, 0]}
     assert out["stairs"] == {"gaps": [1, 0]}
-    md = table2.failures_markdown({"m": out})
+    md = table2_report.failures_markdown({"m": out})
     assert "| m | 0 / 1 (0.0%) | 2 / 2 (100.0%) |" in md  # "after start" first
 
     # the same four trials with their switches logged (slot per artifact, NaN: no switch)
     nan = np.nan
     ahead = np.array([[0.85, 0.40], [0.89, 0.005], [nan, nan], [0.70, 0.60]])
-    recs = table2.switch_outcomes(tracks, ahead, progress, fell, fail_kind)
+    recs = table2_report.switch_outcomes(tracks, ahead, progress, fell, fail_kind)
     assert [(r["kind"], r["prev"], r["ahead_m"], r["outcome"]) for r in recs] == [
         ("jumps", "start", 0.85, "crossed"), ("gaps", "jumps", 0.40, "fell"),
         ("gaps", "start", 0.89, "crossed"), ("stairs", "gaps", 0.005, "crossed"),
         ("jumps", "start", 0.70, "crossed"), ("gaps", "jumps", 0.60, "fell")]
-    summ = table2.switch_summary(recs)
+    summ = table2_report.switch_summary(recs)
     g = summ["gaps"]["jumps"]
     assert g["n"] == 2 and g["lost_pct"] == 100.0 and g["forced_pct"] == 0.0
     assert g["ahead_m_q"] == pytest.approx([0.45, 0.50, 0.55])
@@ -578,7 +582,7 @@ def test_failures_by_context_by_hand():
     assert summ["stairs"]["gaps"]["forced_pct"] == 100.0  # 5 mm: within the forced 1 cm
     assert summ["stairs"]["gaps"]["lost_by_ahead"] == [[0.0, 0.1, 1, 0]]
     assert summ["jumps"]["start"]["lost_pct"] == 0.0 and list(summ["gaps"]) == ["start", "jumps"]
-    md = table2.switches_markdown({"m": summ})
+    md = table2_report.switches_markdown({"m": summ})
     assert "| m | jumps | 2 | 0.50 (0.45-0.55) | 0.0 | 100.0 |" in md
 
 

@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_switch import gait
+from biped_switch.simulation import gait
 from biped_switch.config import default_gait_config
 
 CFG = default_gait_config()

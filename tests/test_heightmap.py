@@ -9,9 +9,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_switch import heightmap as hm
-from biped_switch import model as model_lib
-from biped_switch import terrain
+from biped_switch.simulation import heightmap as hm
+from biped_switch.simulation import model as model_lib
+from biped_switch.simulation import terrain
 
 from helpers import edge_mask, env_boxes, rect_distance, terrain_height_np
 

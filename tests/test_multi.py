@@ -9,10 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_switch import rollout as ro
+from biped_switch.simulation import rollout as ro
 from biped_switch import stats
-from biped_switch import switching as sw
-from biped_switch import table2
+from biped_switch.switching import rules as sw
+from biped_switch.evaluation import multi as table2
+from biped_switch.reports import table2 as table2_report
 
 from conftest import B, TRACK_IDS
 
@@ -149,7 +150,7 @@ def test_table2_metrics_on_synthetic_outcomes():
     lo, hi = row["success_ci"]
     assert lo == pytest.approx(31.27, abs=0.01) and hi == pytest.approx(83.18, abs=0.01)  # Wilson
     row.update(method="estimator")
-    md = table2.table2_markdown([row])
+    md = table2_report.table2_markdown([row])
     # Wilson intervals by hand (den 1 + 1.96^2/10 = 1.3842): 2/10 -> centre 0.2833, half 0.2266;
     # 1/10 -> 0.2110, 0.1931; 0/10 -> 0.1388, 0.1388
     assert row["fail_ci"]["gaps"] == pytest.approx([5.67, 50.98], abs=0.01)
@@ -165,12 +166,13 @@ def test_baseline_rollout_compares_like_with_like(env, multi_fn):
     end-to-end policy) starts from the same states on the same tracks with the same horizon and
     end-of-episode protocol as the switching methods: with identical (zero-torque) policies under
     the guides, the physics, and so every outcome, must agree."""
-    from biped_switch import dqn
+    from biped_switch.learning import dqn
+    from biped_switch.learning import dqn_train as dqn_train
 
     def q_first(_, x):  # table2.BaselineSetup's selector for the end-to-end policy
         return jnp.zeros(x.shape[:-1] + (1,))
 
-    run = jax.jit(lambda rng: dqn.dqn_rollout(
+    run = jax.jit(lambda rng: dqn_train.dqn_rollout(
         env, _apply, PARAMS[:1], q_first, jnp.zeros(()), rng, B, HORIZON,
         track_ids=jnp.asarray(TRACK_IDS), chunk=40, guide_scale=1.0))
     base = jax.device_get(run(jax.random.PRNGKey(0)))

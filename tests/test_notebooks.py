@@ -55,8 +55,13 @@ COMMITTED = {"table1_single_policies": (REAL, None),
 sys.path.insert(0, str(NB_DIR))
 import _common as C  # noqa: E402
 
-from biped_switch import fig4b, fig5, paper, table2, table3  # noqa: E402
-from biped_switch import runs as runs_lib  # noqa: E402
+from biped_switch.reports import fig4b  # noqa: E402
+from biped_switch.reports import fig5
+from biped_switch import paper
+from biped_switch.evaluation import multi as table2
+from biped_switch.reports import table2 as table2_report
+from biped_switch.reports import table3
+from biped_switch.learning import runs as runs_lib  # noqa: E402
 
 
 # ----------------------------------------------------------------------------- synthetic tree
@@ -70,10 +75,12 @@ def _episodes(rng, n, p_success, fail_p=(0.2, 0.5, 0.3)):
 def make_synthetic_results(root: pathlib.Path) -> pathlib.Path:
     """A small results tree in the formats the CLIs write (tables via stats.episode_table, the
     lookup table via sweep.lookup_table/save_lookup), labelled as a stand-in pipeline check."""
-    from biped_switch import sweep, terrain
-    from biped_switch.policies import POLICY_NAMES
+    from biped_switch.switching import sweep
+    from biped_switch.switching import lookup
+    from biped_switch.simulation import terrain
+    from biped_switch.learning.policies import POLICY_NAMES
     from biped_switch.stats import episode_table
-    from biped_switch.table2 import SWITCH_METHODS
+    from biped_switch.evaluation.multi import SWITCH_METHODS
 
     rng = np.random.default_rng(0)
     curr = {"stage": 0, "stage_name": "terrain", "difficulty": 0.3, "guide_scale": 1.0,
@@ -116,12 +123,12 @@ def make_synthetic_results(root: pathlib.Path) -> pathlib.Path:
         source = rng.choice(others, n)
         dist = rng.uniform(0, 0.9, n)
         label = rng.random(n) < 0.2 + 0.6 * dist  # switching early works better
-        tables[target] = sweep.lookup_table(dist, label, source, target)
+        tables[target] = lookup.lookup_table(dist, label, source, target)
     meta = {"sweeps": {t: {"points": 600, "wall_s": 5.0, "points_per_s": 120.0, "success_pct": 47.0,
                            "data": f"runs/sweeps/stand/{t}.npz", "device": "TFRT_CPU_0"}
                        for t in terrain.ARTIFACT_KINDS},
             "policies": {t: dict(zip(POLICY_NAMES, srcs)) for t in terrain.ARTIFACT_KINDS}}
-    sweep.save_lookup(tables, "stand", root / "lookup", meta)
+    lookup.save_lookup(tables, "stand", root / "lookup", meta)
     # estimators
     (root / "estimators").mkdir()
     for target in ("jumps", "gaps"):
@@ -190,7 +197,7 @@ def make_synthetic_runs(root: pathlib.Path) -> pathlib.Path:
 
 def _trace(track_seed: int, T: int = 400) -> dict:
     """A plausible per-step record of one estimator-switching trial on the seed's mixed track."""
-    from biped_switch import terrain
+    from biped_switch.simulation import terrain
 
     track = terrain.generate_track(track_seed, "mixed", 1.0)
     rng = np.random.default_rng(1)
@@ -300,9 +307,9 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch, tmp_p
     monkeypatch.setenv("BIPED_RESULTS", str(synthetic))
     assert C.results_root() == synthetic
     doc = json.loads((synthetic / "table2" / "table2.json").read_text())
-    reasons = table2.table2_provenance(doc, synthetic / "table2" / "table2.json")
+    reasons = table2_report.table2_provenance(doc, synthetic / "table2" / "table2.json")
     assert any("stand-in" in r for r in reasons) and any("guide" in r for r in reasons)
-    txt = C.text_table(*table2.table2_rows(doc))
+    txt = C.text_table(*table2_report.table2_rows(doc))
     for r in doc["rows"]:
         line = next(ln for ln in txt.splitlines() if ln.startswith(r["method"] + " "))
         assert f"{r['success_pct']:.1f}" in line and f"{r['fail_on']['gaps']:.1f}" in line
@@ -345,7 +352,7 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch, tmp_p
     assert any("no total hours for dqn" in r for r in t3_reasons)
     hdr, rows3 = table3.table3_rows(t3, checks)
     assert [r[hdr.index("hours from")] for r in rows3] == ["UNFINISHED RUNS", "-", "UNFINISHED RUNS"]
-    from biped_switch import terrain
+    from biped_switch.simulation import terrain
 
     for fig in (C.plot_table1(json.loads((synthetic / "table1" / "table1.json").read_text())),
                 C.plot_table2(doc), C.plot_fig4b(look),
@@ -396,7 +403,14 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
     get to their work, each with its one expected outcome; the work itself is patched out, except
     retrain-cost, which only reads logs and runs for real (into a temporary folder) on the
     committed results root the Table III notebook reads."""
-    from biped_switch import estimator, evaluate, sweep, train
+    from biped_switch.switching import estimator
+    from biped_switch import estimator as estimator_cli
+    from biped_switch import evaluate
+    from biped_switch.switching import sweep
+    from biped_switch.switching import lookup
+    from biped_switch import sweep as sweep_cli
+    from biped_switch.learning import trainer as train
+    from biped_switch import train as train_cli
 
     monkeypatch.chdir(REPO)  # the commands are typed from the repository root
     monkeypatch.delenv("BIPED_RUNS", raising=False)
@@ -414,11 +428,11 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
                  (evaluate.main, C.fig5_command(tmp_path, 3, settings), PARSED),
                  (evaluate.main, C.table1_command(tmp_path), 1),  # 1: no trained policy found
                  (evaluate.main, C.table1_command(tmp_path, settings), 1),
-                 (sweep.main, C.lookup_command(tmp_path, "random"), PARSED),
+                 (sweep_cli.main, C.lookup_command(tmp_path, "random"), PARSED),
                  # 2: no sweep data in the (empty) --data folder, named on stderr
-                 (estimator.main, C.estimator_command(tmp_path) + ["--data", str(tmp_path / "none")], 2),
-                 (train.main, C.train_command(tmp_path, "gaps", "random"), PARSED),
-                 (train.main, C.train_command(None, "gaps", "random"), PARSED)]
+                 (estimator_cli.main, C.estimator_command(tmp_path) + ["--data", str(tmp_path / "none")], 2),
+                 (train_cli.main, C.train_command(tmp_path, "gaps", "random"), PARSED),
+                 (train_cli.main, C.train_command(None, "gaps", "random"), PARSED)]
         for main, argv, want in cases:
             assert argv[0] == "-m" and main.__module__ == argv[1]
             try:
@@ -581,7 +595,9 @@ def test_cli_and_notebook_draw_the_same_fig5(tmp_path):
     import matplotlib
 
     matplotlib.use("Agg")
-    from biped_switch import fig5, terrain
+    from biped_switch.reports import fig5
+    from biped_switch.reports import fig5 as fig5_report
+    from biped_switch.simulation import terrain
 
     rec = _trace(30_000)
     track = terrain.generate_track(30_000, "mixed", 1.0)

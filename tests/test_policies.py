@@ -11,9 +11,9 @@ import jax
 import numpy as np
 import pytest
 
-from biped_switch import env as env_lib
-from biped_switch import policies as pol
-from biped_switch import runs as runs_lib
+from biped_switch.simulation import env as env_lib
+from biped_switch.learning import policies as pol
+from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_train_config
 
 from policy_runs import fake_policy_run

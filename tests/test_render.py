@@ -12,7 +12,9 @@ import jax
 import numpy as np
 import pytest
 
-from biped_switch import render, terrain
+from biped_switch.simulation import render
+from biped_switch import render as render_cli
+from biped_switch.simulation import terrain
 
 
 def test_track_boxes_drops_padding_rows():
@@ -26,9 +28,10 @@ def test_track_boxes_drops_padding_rows():
 _SCRIPT = textwrap.dedent("""
     import json, sys
     import numpy as np
-    from biped_switch import render
+    from biped_switch.simulation import render
     render._gl_default()
-    from biped_switch import model as model_lib, terrain
+    from biped_switch.simulation import model as model_lib
+    from biped_switch.simulation import terrain
     from biped_switch.config import default_model_config
     track = terrain.generate_track(30000, "mixed", 1.0)
     cap = default_model_config().box_capacity
@@ -78,7 +81,7 @@ def test_main_runs_the_policy_in_the_env_it_was_trained_for(tmp_path, monkeypatc
     """`render --policy P` builds its env with the policy's env overrides (here the paper's torque
     actions without a phase clock, not today's defaults) on the chosen backend; the drawing is
     patched out (no OpenGL needed)."""
-    from biped_switch import env as env_lib
+    from biped_switch.simulation import env as env_lib
     from policy_runs import fake_policy_run
 
     fake_policy_run(tmp_path / "runs", "walk", env={"action": "torque", "phase_obs": False})
@@ -97,7 +100,7 @@ def test_main_runs_the_policy_in_the_env_it_was_trained_for(tmp_path, monkeypatc
     monkeypatch.setattr(render, "record", spy_record)
     monkeypatch.setattr(render, "frames", fake_frames)
     out = tmp_path / "clip.gif"
-    assert render.main(["--policy", "walk", "--runs", str(tmp_path / "runs"), "--seconds", "0.1",
+    assert render_cli.main(["--policy", "walk", "--runs", str(tmp_path / "runs"), "--seconds", "0.1",
                         "--backend", "mujoco", "--out", str(out)]) == 0
     env = seen["env"]
     assert (env.cfg.action, env.cfg.phase_obs, env.backend) == ("torque", False, "mujoco")
@@ -145,10 +148,10 @@ def test_a_table1_trial_replays_to_the_float(tmp_path):
     (which changes the policy's rounding), the final distance equals the batch rollout's."""
     import functools
 
-    from biped_switch import env as env_lib
-    from biped_switch import table1
-    from biped_switch.policies import load_policy
-    from biped_switch.rollout import rollout
+    from biped_switch.simulation import env as env_lib
+    from biped_switch.evaluation import single as table1
+    from biped_switch.learning.policies import load_policy
+    from biped_switch.simulation.rollout import rollout
     from policy_runs import fake_policy_run
 
     ckpt = fake_policy_run(tmp_path / "runs", "jumps", init="random")

@@ -11,9 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_switch import estimator
-from biped_switch import policies as pol
-from biped_switch import sweep
+from biped_switch.switching import estimator
+from biped_switch.learning import policies as pol
+from biped_switch.switching import sweep
+from biped_switch.switching import lookup
+from biped_switch import sweep as sweep_cli
 
 from conftest import B, TRACK_IDS, batch_reset
 
@@ -331,7 +333,7 @@ def fake_sweep(monkeypatch):
     monkeypatch.setattr(sweep, "make_runner", make_runner)
 
     def cfg(n_points):
-        c = sweep.default_sweep_config()
+        c = sweep_cli.default_sweep_config()
         c.n_points, c.batch = n_points, batch
         return c
 
@@ -410,22 +412,22 @@ def test_main_keeps_the_stats_of_targets_swept_before(fake_sweep, tmp_path):
     out, res = tmp_path / "sweeps", tmp_path / "lookup"
     argv = ["--points", "30", "--batch", "6", "--tracks", "1000", "--out", str(out),
             "--results", str(res), "--targets"]
-    assert sweep.main(argv + ["jumps"]) == 0
+    assert sweep_cli.main(argv + ["jumps"]) == 0
     first = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]
     assert set(first) == {"jumps"}
     j = first["jumps"]  # 2 batches of 20 points: 21 s in all, 20 s in the loop
     assert (j["points"], j["points_new"], j["wall_s"], j["loop_s"]) == (40, 40, 21, 20)
     assert j["points_per_s"] == 2.0 and j["points_per_s_steady"] == 2.0
     # a later command sweeps gaps, then extends gaps: jumps' entry stays, gaps' time adds up
-    assert sweep.main(argv + ["gaps"]) == 0
-    assert sweep.main(argv[:1] + ["50"] + argv[2:] + ["gaps"]) == 0
+    assert sweep_cli.main(argv + ["gaps"]) == 0
+    assert sweep_cli.main(argv[:1] + ["50"] + argv[2:] + ["gaps"]) == 0
     sweeps = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]
     assert set(sweeps) == {"jumps", "gaps"} and sweeps["jumps"] == j
     g = sweeps["gaps"]
     assert (g["points"], g["points_new"], g["wall_s"], g["loop_s"]) == (60, 20, 21 + 11, 10)
     assert g["points_per_s"] == 2.0 and g["points_per_s_steady"] is None
     # rerun when the points are all there: nothing made, the recorded speed and time stay
-    assert sweep.main(argv[:1] + ["50"] + argv[2:] + ["gaps"]) == 0
+    assert sweep_cli.main(argv[:1] + ["50"] + argv[2:] + ["gaps"]) == 0
     again = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]["gaps"]
     assert again == g
 
@@ -441,12 +443,12 @@ def test_main_reads_the_lookup_when_it_ends_not_when_it_starts(fake_sweep, tmp_p
     def jumps_ends_during_gaps(init, target, *args, **kw):
         if target == "gaps":  # the jumps command starts after gaps' and ends before it
             monkeypatch.setattr(sweep, "run_sweep", inner)
-            assert sweep.main(argv + ["jumps"]) == 0
+            assert sweep_cli.main(argv + ["jumps"]) == 0
             monkeypatch.setattr(sweep, "run_sweep", jumps_ends_during_gaps)
         return inner(init, target, *args, **kw)
 
     monkeypatch.setattr(sweep, "run_sweep", jumps_ends_during_gaps)
-    assert sweep.main(argv + ["gaps"]) == 0
+    assert sweep_cli.main(argv + ["gaps"]) == 0
     sweeps = json.loads((res / "lookup_stand.json").read_text())["meta"]["sweeps"]
     j = sweeps["jumps"]  # as the jumps command measured it: 2 batches of 20 points, 21 s
     assert (j["points"], j["points_new"], j["wall_s"], j["loop_s"]) == (40, 40, 21, 20)
@@ -460,12 +462,12 @@ def test_main_keeps_the_table_of_a_target_whose_data_is_gone(fake_sweep, tmp_pat
     out, res = tmp_path / "sweeps", tmp_path / "lookup"
     argv = ["--points", "30", "--batch", "6", "--tracks", "1000", "--out", str(out),
             "--results", str(res), "--targets"]
-    assert sweep.main(argv + ["jumps"]) == 0
+    assert sweep_cli.main(argv + ["jumps"]) == 0
     first = json.loads((res / "lookup_stand.json").read_text())
     import shutil
 
     shutil.rmtree(out)  # a fresh machine: no sweep data
-    assert sweep.main(argv + ["gaps"]) == 0
+    assert sweep_cli.main(argv + ["gaps"]) == 0
     doc = json.loads((res / "lookup_stand.json").read_text())
     assert doc["tables"]["jumps"] == first["tables"]["jumps"] and "gaps" in doc["tables"]
     assert doc["meta"]["sweeps"]["jumps"] == first["meta"]["sweeps"]["jumps"]
@@ -474,7 +476,7 @@ def test_main_keeps_the_table_of_a_target_whose_data_is_gone(fake_sweep, tmp_pat
         if k.endswith("->jumps"):
             assert doc["best_m"][k] == v
     # by hand: a row's best bin is the highest rate, ties to the farthest bin; the target's row is NaN
-    t = sweep.table_from_rates([[0.5, 1.0, 1.0, np.nan], [0.0, 0.0, 0.0, 0.0], [1.0, 0, 0, 0],
+    t = lookup.table_from_rates([[0.5, 1.0, 1.0, np.nan], [0.0, 0.0, 0.0, 0.0], [1.0, 0, 0, 0],
                                 [0.0, 0.2, 0.1, 0.3]], [[2, 1, 1, 0], [0, 0, 0, 0], [1, 1, 1, 1],
                                                        [1, 1, 1, 1]], "jumps", 0.1)
     np.testing.assert_allclose(t["best_m"], [0.25, np.nan, 0.05, 0.35])

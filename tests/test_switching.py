@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from biped_switch import policies as pol
-from biped_switch import switching as sw
-from biped_switch import sweep
+from biped_switch.learning import policies as pol
+from biped_switch.switching import rules as sw
+from biped_switch.reports import fig4b as fig4b
+from biped_switch.switching import sweep
+from biped_switch.switching import lookup
 
 
 # ----------------------------------------------------------------------- support polygon
@@ -213,7 +215,7 @@ def test_lookup_table_rates_and_argmax_by_hand():
     dist = np.array([0.305, 0.305, 0.305, 0.601, 0.601, 0.0, 0.2, 0.2])
     label = np.array([1, 1, 0, 1, 1, 0, 1, 0])
     source = np.array([0, 0, 0, 0, 0, 0, 3, 3])  # stairs -> gaps: 1 of 2 at 0.2 m
-    t = sweep.lookup_table(dist, label, source, "gaps")
+    t = lookup.lookup_table(dist, label, source, "gaps")
     assert t["rate"].shape == (4, 90)
     assert t["rate"][0, 30] == pytest.approx(2 / 3) and t["count"][0, 30] == 3
     assert t["rate"][0, 60] == 1.0 and t["rate"][0, 0] == 0.0
@@ -222,21 +224,21 @@ def test_lookup_table_rates_and_argmax_by_hand():
     assert t["best_m"][3] == pytest.approx(0.205)
     assert np.isnan(t["best_m"][2])  # gaps -> gaps: not a switch
     assert np.isnan(t["best_m"][1])  # no data from jumps
-    m = sweep.lookup_matrix({"gaps": t})
+    m = lookup.lookup_matrix({"gaps": t})
     assert m.shape == (4, 3) and m[0, 1] == pytest.approx(0.605) and np.isnan(m[0, 0])
 
 
 def test_lookup_ties_go_to_the_earliest_switch():
-    t = sweep.lookup_table(np.array([0.1, 0.5, 0.7]), np.array([1, 1, 1]), np.array([0, 0, 0]),
+    t = lookup.lookup_table(np.array([0.1, 0.5, 0.7]), np.array([1, 1, 1]), np.array([0, 0, 0]),
                            "jumps")
     assert t["best_m"][0] == pytest.approx(0.705)
 
 
 def test_smoothed_success_pct_hand_values():
     # 3-bin windows: bin 0 sees bins 0-1 (2 successes of 4 points), bin 2 sees bins 1-2 (0 of 2)
-    out = sw.smoothed_success_pct(np.array([1.0, 0.0, np.nan]), np.array([2.0, 2.0, 0.0]), 3)
+    out = fig4b.smoothed_success_pct(np.array([1.0, 0.0, np.nan]), np.array([2.0, 2.0, 0.0]), 3)
     np.testing.assert_allclose(out, [50.0, 50.0, 0.0])
-    far = sw.smoothed_success_pct(np.array([1.0, np.nan, np.nan, np.nan]), np.array([1.0, 0, 0, 0]), 3)
+    far = fig4b.smoothed_success_pct(np.array([1.0, np.nan, np.nan, np.nan]), np.array([1.0, 0, 0, 0]), 3)
     assert far[1] == 100.0 and np.isnan(far[2]) and np.isnan(far[3])  # no point within a bin
 
 

@@ -11,8 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_switch import model as model_lib
-from biped_switch import terrain
+from biped_switch.simulation import model as model_lib
+from biped_switch.simulation import terrain
+from biped_switch import terrain as terrain_cli
 from biped_switch.config import default_model_config, default_terrain_config
 
 from helpers import box_intervals_x, env_boxes
@@ -338,7 +339,7 @@ def test_stack_tracks_pads_and_parks():
 
 # ----------------------------------------------------------------------------- CLI
 def test_cli_json(capsys):
-    assert terrain.main(["--kind", "mixed", "--seed", "0", "--json"]) == 0
+    assert terrain_cli.main(["--kind", "mixed", "--seed", "0", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert {"boxes", "artifacts", "width"} <= set(out)
     t = terrain.generate_track(0, "mixed")
@@ -349,7 +350,7 @@ def test_cli_json(capsys):
 
 
 def test_cli_difficulty_and_kind(capsys):
-    assert terrain.main(["--kind", "stairs", "--seed", "4", "--difficulty", "0.5", "--json"]) == 0
+    assert terrain_cli.main(["--kind", "stairs", "--seed", "4", "--difficulty", "0.5", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["difficulty"] == 0.5 and out["kind"] == "stairs"
     np.testing.assert_allclose(np.array(out["boxes"]),
@@ -358,7 +359,7 @@ def test_cli_difficulty_and_kind(capsys):
 
 def test_cli_png(tmp_path, capsys):
     path = tmp_path / "track.png"
-    assert terrain.main(["--kind", "jumps", "--seed", "2", "--png", str(path)]) == 0
+    assert terrain_cli.main(["--kind", "jumps", "--seed", "2", "--png", str(path)]) == 0
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert path.stat().st_size > 1000
 
@@ -367,7 +368,7 @@ def test_cli_png(tmp_path, capsys):
                                          (["--difficulty", "1.5"], "1.5")])
 def test_cli_errors(capsys, argv, word):
     with pytest.raises(SystemExit) as e:
-        terrain.main(argv + ["--json"])
+        terrain_cli.main(argv + ["--json"])
     assert e.value.code == 2
     assert word in capsys.readouterr().err
 

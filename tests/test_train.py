@@ -8,13 +8,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_switch import env as env_lib
-from biped_switch import networks, ppo
-from biped_switch import runs as runs_lib
-from biped_switch import train as train_lib
+from biped_switch.simulation import env as env_lib
+from biped_switch.learning import networks
+from biped_switch.learning import ppo
+from biped_switch.learning import checkpoints as ckpt_lib
+from biped_switch.learning import runs as runs_lib
+from biped_switch.learning import trainer as train_lib
+from biped_switch import train as train_cli
 from biped_switch.config import default_train_config
-from biped_switch.policies import load_policy
-from biped_switch.rollout import rollout, summarize
+from biped_switch.learning.policies import load_policy
+from biped_switch.simulation.rollout import rollout, summarize
+from biped_switch.reports import curves
 from helpers import FakeEnv
 
 
@@ -91,7 +95,7 @@ def trained(tmp_path_factory):
     lines = []
     first = train_lib.train(cfg, run_dir, print_fn=lines.append)
     ckpt1 = runs_lib.latest_checkpoint(run_dir)
-    saved1 = jax.tree.map(np.asarray, runs_lib.load_checkpoint(ckpt1)[0])
+    saved1 = jax.tree.map(np.asarray, ckpt_lib.load_checkpoint(ckpt1)[0])
     cfg.total_timesteps = 256
     resumed = []
     second = train_lib.train(cfg, run_dir, print_fn=lines.append,
@@ -158,7 +162,7 @@ def test_metrics_log_and_curves(trained):
             assert abs(total - float(cells[header.index("eval/reward_per_step")])) < 1e-3
     losses = [r.split(",")[header.index("loss/value")] for r in rows[1:]]
     assert [v for v in losses if v] and all(np.isfinite(float(v)) for v in losses if v)
-    runs_lib.plot_curves(run_dir, run_dir / "curves.png")
+    curves.ppo_curves(run_dir, run_dir / "curves.png")
     assert (run_dir / "curves.png").stat().st_size > 10_000
 
 
@@ -166,7 +170,7 @@ def test_committed_copy_resumes_a_fresh_machine(trained, tmp_path, monkeypatch):
     """With runs/ absent, train resumes from the committed models/policies/<run>/ copy."""
     committed = tmp_path / "models" / "policies"
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", committed)
-    out = runs_lib.commit_run(trained["dir"])
+    out = runs_lib.commit_run(trained["dir"], plot_fn=curves.ppo_curves)
     assert out == committed / "gaps_stand"
     assert [p.name for p in (out / "checkpoints").iterdir()] == [f"{256:012d}"]  # only the latest
     assert (out / "curves.png").exists() and (out / "config.json").exists()
@@ -189,7 +193,7 @@ def test_loaded_policy_acts_like_the_trainer(trained):
     state = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 3))
     a = np.asarray(act(state.obs, None))
     assert a.shape == (3, 12) and np.all(np.abs(a) <= 1.0)
-    tree, _ = runs_lib.load_checkpoint(ckpt)
+    tree, _ = ckpt_lib.load_checkpoint(ckpt)
     pol = ppo.make_policy(trained["cfg"].network, env)
     norm = ppo.Normalizer(**{k: jnp.asarray(v) for k, v in tree["norm"].items()})
     ref = np.clip(np.asarray(pol(tree["params"], norm, state.obs, None, True)), -1, 1)
@@ -376,7 +380,7 @@ def test_a_resume_keeps_the_runs_own_settings(tmp_path, monkeypatch):
 
 def test_guide_notch_flag_names_a_bad_value(capsys):
     with pytest.raises(SystemExit):
-        train_lib.main(["--policy", "mixed", "--guide-notch", "1.0"])
+        train_cli.main(["--policy", "mixed", "--guide-notch", "1.0"])
     assert "--guide-notch must be in (0, 1), got 1.0" in capsys.readouterr().err
 
 
@@ -412,7 +416,7 @@ def test_action_std_cap_projects_the_log_std_after_updates_and_on_resume():
 
 def test_action_std_flag_names_a_bad_value(capsys):
     with pytest.raises(SystemExit):
-        train_lib.main(["--policy", "mixed", "--max-action-std", "-0.1"])
+        train_cli.main(["--policy", "mixed", "--max-action-std", "-0.1"])
     assert "--max-action-std must be >= 0 (0: no cap), got -0.1" in capsys.readouterr().err
 
 

@@ -50,8 +50,8 @@ if str(REPO) not in sys.path:  # biped_switch importable even without `pip insta
     sys.path.insert(0, str(REPO))
 
 from biped_switch import paper  # noqa: E402  (the paper's numbers)
-from biped_switch.provenance import rel, repo_path  # noqa: E402
-from biped_switch.runs import COMMITTED_DIR, curve_series  # noqa: E402
+from biped_switch.reports.provenance import rel, repo_path  # noqa: E402
+from biped_switch.learning.runs import COMMITTED_DIR, curve_series  # noqa: E402
 from biped_switch.stats import wilson_ci  # noqa: E402
 
 METHOD_LABELS = {"random": "Random", "detection": "On detection", "lookup": "Lookup table",
@@ -351,9 +351,9 @@ def plot_table3(doc: dict, title: str = ""):
 # ------------------------------------------------------------------------------- Fig. 4b
 def plot_fig4b(doc: dict, smooth_bins: int = 5, title: str = ""):
     """Success of switching against distance to the artifact, per (source -> target) pair."""
-    from biped_switch.fig4b import lookup_arrays
-    from biped_switch.policies import POLICY_NAMES
-    from biped_switch.switching import smoothed_success_pct
+    from biped_switch.reports.fig4b import lookup_arrays
+    from biped_switch.learning.policies import POLICY_NAMES
+    from biped_switch.stats import smoothed_success_pct
 
     plt = _plt()
     tables = lookup_arrays(doc)

@@ -1,4 +1,6 @@
-"""Run folders and their checkpoints: the one module that reads and writes them.
+"""Run folders: where a run's config, logs and checkpoints live, and how a fresh clone finds them.
+Plain Python (no JAX, no Orbax), so the reports layer reads runs fast; the checkpoint codec itself
+is `learning.checkpoints`.
 
 A training run (PPO: train.py; the DQN selector: dqn.py) lives in one folder:
 
@@ -25,44 +27,20 @@ import shutil
 import time
 
 import numpy as np
-import orbax.checkpoint as ocp
 from ml_collections import config_dict
 
 from biped_switch.config import default_train_config
-from biped_switch.model import MODELS_DIR
+from biped_switch.paths import BASELINE_DIR, COMMITTED_DIR  # noqa: F401  (re-exported)
 
 try:  # optional: TensorBoard logs (tensorboardX ships with brax)
     from tensorboardX import SummaryWriter
 except ImportError:  # pragma: no cover
     SummaryWriter = None
 
-COMMITTED_DIR = MODELS_DIR / "policies"  # latest checkpoint of every PPO run, committed
-BASELINE_DIR = MODELS_DIR / "baselines"  # committed DQN runs, as models/policies/ for PPO
 PROGRESS = "progress.json"
 
 
 # ----------------------------------------------------------------------- checkpoints
-def save_tree(run_dir: pathlib.Path, step: int, tree, progress: dict,
-              keep: int | None = None) -> pathlib.Path:
-    """Orbax checkpoint <run>/checkpoints/<step>/ of `tree` with progress.json beside it (the
-    layout `latest_checkpoint` finds; PPO and DQN runs alike); with `keep`, older checkpoints
-    beyond the last `keep` are removed."""
-    path = pathlib.Path(run_dir) / "checkpoints" / f"{step:012d}"
-    ocp.PyTreeCheckpointer().save(path.resolve(), tree, force=True)
-    (path / PROGRESS).write_text(json.dumps(progress, indent=2))
-    if keep is not None:
-        for old in sorted(path.parent.glob("[0-9]" * 12))[:-keep]:
-            shutil.rmtree(old, ignore_errors=True)
-    return path
-
-
-def save_ppo(run_dir: pathlib.Path, step: int, state, progress: dict, keep: int = 2) -> pathlib.Path:
-    """A PPO checkpoint of a ppo.TrainState: parameters, optimiser state, normaliser; the last
-    `keep` are kept."""
-    tree = {"params": state.params, "opt_state": state.opt_state, "norm": state.norm._asdict()}
-    return save_tree(run_dir, step, tree, progress, keep)
-
-
 def latest_checkpoint(run_dir: pathlib.Path) -> pathlib.Path | None:
     """The run's newest finished checkpoint (one with a progress.json), or None."""
     ckpts = sorted(p for p in (pathlib.Path(run_dir) / "checkpoints").glob("[0-9]" * 12)
@@ -73,20 +51,6 @@ def latest_checkpoint(run_dir: pathlib.Path) -> pathlib.Path | None:
 def read_progress(ckpt: pathlib.Path) -> dict:
     """The progress record saved beside a checkpoint."""
     return json.loads((pathlib.Path(ckpt) / PROGRESS).read_text())
-
-
-def load_checkpoint(path: pathlib.Path, template=None):
-    """(state tree, progress dict) of a checkpoint (PPO: {params, opt_state, norm}). With
-    `template` (a ppo.TrainState), the PPO tree is restored into its structure."""
-    path = pathlib.Path(path)
-    ckptr = ocp.PyTreeCheckpointer()
-    if template is not None:
-        item = {"params": template.params, "opt_state": template.opt_state,
-                "norm": template.norm._asdict()}
-        tree = ckptr.restore(path.resolve(), item=item)
-    else:
-        tree = ckptr.restore(path.resolve())
-    return tree, read_progress(path)
 
 
 # ----------------------------------------------------------------------- a run's config
@@ -186,58 +150,6 @@ def curve_series(rows: list[dict], key: str) -> np.ndarray:
     return np.array(pts).reshape(-1, 2)
 
 
-def plot_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
-    """Training curves of a run (metrics.csv): episode reward and length, eval reward per step,
-    curriculum values, against environment steps."""
-    # lazy: matplotlib loads slowly and only the plots need it; the backend is chosen before pyplot
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = list(csv.DictReader((pathlib.Path(run_dir) / "metrics.csv").open()))
-    # rows of a window in which no episode ended carry no episode statistics (runs of before
-    # 2026-12-01 logged zeros there; an ended episode lasts at least one step)
-    ep_rows = [r for r in rows if float(r.get("episode/length") or 0.0) > 0.0]
-
-    def series(key):
-        return curve_series(ep_rows if key.startswith("episode/") else rows, key)
-
-    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
-    for key, ax in (("episode/sum_reward", axes[0]), ("episode/length", axes[0].twinx())):
-        xy = series(key)
-        ax.plot(xy[:, 0], xy[:, 1], "-" if "reward" in key else ":", label=key)
-        ax.set_ylabel(key)
-    axes[0].set_title("training episodes")
-    xy = series("eval/reward_per_step")
-    axes[1].plot(xy[:, 0], xy[:, 1], "o-", label="reward per step")
-    axes[1].set_ylabel("reward per step")
-    fell_ax = axes[1].twinx()
-    xy = series("eval/fell")
-    fell_ax.plot(xy[:, 0], xy[:, 1], "r.:", label="fell")
-    fell_ax.set_ylabel("fraction fell", color="r")
-    fell_ax.set_ylim(-0.02, 1.02)
-    axes[1].set_title("milestone rollout (current curriculum; 5 s to session 6, then 20 s)")
-    for key in ("difficulty", "guide_scale", "push_scale"):  # logged with every epoch
-        xy = series(key)
-        axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)
-    axes[2].set_title("curriculum")
-    axes[2].legend(fontsize=8)
-    save_curves(fig, axes, run_dir, out_png)
-
-
-def save_curves(fig, axes, run_dir, out_png) -> None:
-    """The common end of a run's curve figure: step axes, the run as the title, saved, closed."""
-    import matplotlib.pyplot as plt
-
-    for ax in axes:
-        ax.set_xlabel("environment steps")
-    fig.suptitle(str(run_dir))
-    fig.tight_layout()
-    fig.savefig(out_png, dpi=110)
-    plt.close(fig)
-
-
 # ----------------------------------------------------------------------- committed runs
 def restore_committed(run_dir: pathlib.Path, print_fn=print,
                       committed_root: pathlib.Path | None = None) -> None:
@@ -278,7 +190,7 @@ def train_log(run_dir: pathlib.Path, print_fn=print, committed_root: pathlib.Pat
 def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None,
                plot_fn=None) -> pathlib.Path:
     """Copies a run's latest checkpoint, config, metrics and curves (`plot_fn(run_dir, png)`,
-    default `plot_curves`: PPO's) to models/policies/<run>/ (only the latest checkpoint), for a
+    e.g. `reports.curves.ppo_curves`; none when None) to models/policies/<run>/ (only the latest checkpoint), for a
     later session or a fresh clone to resume from."""
     out = out_dir or COMMITTED_DIR / run_dir.name
     ckpt = latest_checkpoint(run_dir)
@@ -292,7 +204,8 @@ def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None,
         if (run_dir / name).exists():
             shutil.copy2(run_dir / name, out / name)
     if (run_dir / "metrics.csv").exists():
-        (plot_fn or plot_curves)(run_dir, out / "curves.png")
+        if plot_fn is not None:
+            plot_fn(run_dir, out / "curves.png")
     return out
 
 
@@ -422,3 +335,11 @@ def _float(v) -> float:
 def training_checks(run_dirs, name=str) -> list[str]:
     """Verdict reasons over run folders: "<name(run)>: <its run_notes>" for each run with notes."""
     return [f"{name(d)}: {', '.join(n)}" for d in map(pathlib.Path, run_dirs) if (n := run_notes(d))]
+
+
+def full_push(run_cfg: dict) -> str:
+    """A run's full push scale, as its config.json has it ('?' when it does not)."""
+    c = run_cfg.get("curriculum", {})
+    if "max_push_N" not in c or "push_duration_s" not in c:
+        return "?"
+    return f"{float(c['max_push_N']):g} N for {float(c['push_duration_s']):g} s"

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from biped_switch import networks
+from biped_switch.learning import networks
 
 
 class Normalizer(NamedTuple):

@@ -17,9 +17,9 @@ import numpy as np
 from mujoco import mjx
 
 from biped_switch.config import default_model_config
-from biped_switch.terrain import PARK_HALF_M, PARK_Z_M
+from biped_switch.simulation.terrain import PARK_HALF_M, PARK_Z_M
 
-MODELS_DIR = pathlib.Path(__file__).resolve().parent.parent / "models"
+from biped_switch.paths import MODELS_DIR  # noqa: E402,F401
 JOINTS = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
 JOINT_NAMES = tuple(f"{s}_{j}" for s in "lr" for j in JOINTS)  # action / state order
 SOLE_CORNERS = ("fl", "fr", "bl", "br")

@@ -1,40 +1,11 @@
-"""Fig. 5 of the paper: one trial of a switching method over time (`evaluate multi --fig5-trial`).
-
-`trace_trial` records every control step of one trial of a Table II set-up (table2.MultiSetup):
-the estimators' outputs, the detections, the switches, the active policy, the CoM and feet;
-`fig5_figure` draws it (one drawing for the CLI, the demo and the notebook), `plot_trial` saves it.
-"""
+"""Fig. 5 drawn from a recorded trial: each estimator's output over time, detections and switches. Plain Python and matplotlib."""
 
 from __future__ import annotations
 
-import functools
 import pathlib
-
-import jax
 import numpy as np
-
-from biped_switch import switching as sw
 from biped_switch.config import default_switching_config
-from biped_switch.policies import POLICY_NAMES
-from biped_switch.terrain import ARTIFACT_KINDS
-
-
-def trace_trial(setup, method: str, trial: int, seed: int) -> dict:
-    """Per-step record of trial `trial` of a table2.MultiSetup (Fig. 5). A stand-init reset on a
-    given track uses no randomness, so this is the trial of the table; a random-init trace draws
-    its own start joints (key seed + trial), and the `random` rule its own distances."""
-    rules, est_params = setup.rules_for(method)
-    f = jax.jit(functools.partial(sw.trace_rollout, setup.env, setup.suite.apply,
-                                  est_apply=setup.est_apply, horizon=setup.horizon,
-                                  guide_scale=setup.guide_scale))
-    rec = jax.device_get(f(suite_params=setup.suite.params,
-                           est_params=est_params,
-                           rules=rules, rng=jax.random.PRNGKey(seed + trial), track_id=trial))
-    return {k: np.asarray(v) for k, v in rec.items()}
-
-
-FIG5_KEYS = ("time_s", "com_x_m", "body_com", "soles", "contact", "det_kind", "det_dist_m",
-             "est_probs", "com_ok", "active", "switched", "ended", "fell", "success", "track_seed")
+from biped_switch.names import ARTIFACT_KINDS, FIG5_KEYS, POLICY_NAMES
 
 
 def load_trial(path) -> dict:

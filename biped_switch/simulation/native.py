@@ -34,8 +34,8 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from biped_switch import model as model_lib
-from biped_switch import terrain
+from biped_switch.simulation import model as model_lib
+from biped_switch.simulation import terrain
 
 def _nthread() -> int:
     """Threads of each mujoco.batch.Batch: all cores, or BIPED_SWITCH_NTHREAD when several runs share them."""

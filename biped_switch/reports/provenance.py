@@ -1,7 +1,6 @@
 """What a results file says about where its numbers come from: pipeline-check labels, stand-in
 policies, and the one verdict line every result notebook prints (table1, table2, table3, fig4b,
-runs and estimator build their provenance from these). Plain Python: importing this module
-imports nothing of the package.
+runs and estimator build their provenance from these). Plain Python.
 """
 
 from __future__ import annotations
@@ -9,22 +8,7 @@ from __future__ import annotations
 import pathlib
 from typing import Callable, Iterable
 
-REPO = pathlib.Path(__file__).resolve().parents[1]  # the repository (or install) root
-
-
-def rel(path) -> str:
-    """`path` relative to the repository root when it is inside it (for commands and messages)."""
-    p = pathlib.Path(path)
-    try:
-        return str(p.resolve().relative_to(REPO))
-    except ValueError:
-        return str(p)
-
-
-def repo_path(p) -> pathlib.Path:
-    """`p` with a relative path taken from the repository root."""
-    p = pathlib.Path(p).expanduser()
-    return p if p.is_absolute() else REPO / p
+from biped_switch.paths import REPO, rel, repo_path  # noqa: F401  (re-exported)
 
 
 def is_pipeline_check(path) -> bool:

@@ -13,9 +13,9 @@ import pathlib
 import numpy as np
 
 from biped_switch import paper
-from biped_switch import provenance as prov
-from biped_switch import runs as runs_lib
-from biped_switch.terrain import ARTIFACT_KINDS
+from biped_switch.reports import provenance as prov
+from biped_switch.learning import runs as runs_lib
+from biped_switch.names import ARTIFACT_KINDS
 
 
 def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand") -> dict:

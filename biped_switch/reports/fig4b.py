@@ -9,8 +9,12 @@ from __future__ import annotations
 import numpy as np
 
 from biped_switch import paper
-from biped_switch import provenance as prov
-from biped_switch.policies import POLICY_NAMES
+from biped_switch.reports import provenance as prov
+from biped_switch.names import POLICY_NAMES
+import pathlib
+import textwrap
+
+from biped_switch.stats import smoothed_success_pct
 
 
 def lookup_arrays(doc: dict) -> dict:
@@ -121,3 +125,42 @@ def plot_switch_distances(by_method: dict, path=None, kind: str = "gaps"):
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return None
+
+
+def plot_switch_success(tables: dict, path: pathlib.Path, title: str = "",
+                        smooth_bins: int = 5) -> None:
+    """The paper's Fig. 4b: success of switching against distance to the artifact, per pair."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(tables), figsize=(5 * len(tables), 3.6), squeeze=False)
+    for ax, (target, t) in zip(axes[0], tables.items()):
+        for j, name in enumerate(POLICY_NAMES):
+            cnt = t["count"][j]
+            if name == target or cnt.sum() == 0:
+                continue
+            ax.plot(t["bins_m"] + 0.005, smoothed_success_pct(t["rate"][j], cnt, smooth_bins),
+                    label=f"{name} -> {target} (n={int(cnt.sum())})")
+            if np.isfinite(t["best_m"][j]):
+                ax.axvline(t["best_m"][j], ls=":", lw=0.8, color=ax.lines[-1].get_color())
+        ax.set_xlim(0.9, 0)  # the robot approaches from the left: far -> near
+        ax.set_ylim(-2, 102)
+        ax.set_xlabel("switch distance before the artifact [m]")
+        ax.set_ylabel(f"% success (moving mean of {smooth_bins} cm)")
+        ax.set_title(f"switch to {target}")
+        ax.legend(fontsize=7)
+    fig.suptitle(textwrap.fill(title, 70 * len(tables)), fontsize=9)  # one panel: 2 lines
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def draw_lookup(tables: dict, init: str, out: pathlib.Path) -> pathlib.Path:
+    """Fig. 4b of one sweep's lookup tables, beside its lookup_<init>.json."""
+    what = (f"{init.removesuffix('_context')} init, after the source's own artifact"
+            if init.endswith("_context") else f"{init} init")
+    path = pathlib.Path(out) / f"fig4b_{init}.png"
+    plot_switch_success(tables, path, f"{what}: switch success against distance (sweep data)")
+    return path

@@ -56,29 +56,18 @@ import numpy as np
 from brax.envs.base import Env, State
 from mujoco import mjx
 
-from biped_switch import gait
-from biped_switch import model as model_lib
-from biped_switch import native
-from biped_switch import terrain
+from biped_switch.simulation import gait
+from biped_switch.simulation import model as model_lib
+from biped_switch.simulation import native
+from biped_switch.simulation import terrain
 from biped_switch.config import (default_curriculum_config, default_env_config, default_gait_config,
                                  default_model_config, default_terrain_config)
-from biped_switch.heightmap import cell_offsets, heightmap, terrain_height
+from biped_switch.simulation.heightmap import cell_offsets, heightmap, terrain_height
+from biped_switch.names import BACKEND_CHOICES, BACKENDS, INITS  # noqa: F401  (re-exported)
+from biped_switch.simulation.detection import blame_kind, detection_zone_entered, kinds_met  # noqa: F401
+from biped_switch.simulation.observation import STATE_SIZE, STATE_SLICES  # noqa: F401  (re-exported)
+from biped_switch.simulation.physics import _euler, _quat_to_mat, resolve_backend, sole_contacts  # noqa: F401
 
-STATE_SIZE = 51
-STATE_SLICES = {
-    "joint_pos": slice(0, 12),
-    "joint_vel": slice(12, 24),
-    "contact": slice(24, 33),
-    "contact_prev": slice(33, 42),
-    "com_lin_vel": slice(42, 45),
-    "com_ang_vel": slice(45, 48),
-    "pitch": slice(48, 49),
-    "roll": slice(49, 50),
-    "com_height": slice(50, 51),
-}
-INITS = ("stand", "random")
-BACKENDS = ("mujoco", "mjx")
-BACKEND_CHOICES = ("auto",) + BACKENDS  # what every CLI's --backend accepts
 BACKEND_HELP = "physics backend (auto: mujoco on a CPU, mjx on an accelerator)"
 ACTIONS = ("torque", "pd")
 PUSH_MAGNITUDES = ("uniform", "max")  # curriculum.push_magnitude: how each push force is drawn
@@ -90,44 +79,6 @@ BRAX_WRAPPER_KEYS = frozenset({"steps", "truncation", "first_pipeline_state", "f
 REWARD_TERMS = ("progress", "speed", "alive", "upright", "height", "lateral", "torque", "fall")
 MAX_QVEL = 200.0  # [m/s, rad/s] beyond any motion of this robot: the simulation has diverged
 FALL_Z_M = -0.2  # CoM below the track surface (z = 0 on flats): fell into a gap or off the side
-CONTACT_DIST_M = 0.0  # a sole touches when the solver has a contact: signed distance < 0 (MJX's
-# sphere-box collider reports dist = 1 for any separated pair, so no positive margin is possible)
-
-
-def _quat_to_mat(q):
-    """Rotation matrix of a unit quaternion (w, x, y, z)."""
-    w, x, y, z = q / jnp.linalg.norm(q)
-    return jnp.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def _euler(xmat):
-    """ZYX yaw, pitch, roll [rad] of a rotation matrix."""
-    yaw = jnp.arctan2(xmat[1, 0], xmat[0, 0])
-    pitch = jnp.arcsin(jnp.clip(-xmat[2, 0], -1.0, 1.0))
-    roll = jnp.arctan2(xmat[2, 1], xmat[2, 2])
-    return yaw, pitch, roll
-
-
-def resolve_backend(name: str) -> str:
-    """"auto" -> "mujoco" on a CPU (the C engine is ~9x faster there), "mjx" on an accelerator."""
-    if name == "auto":
-        return "mujoco" if jax.default_backend() == "cpu" else "mjx"
-    if name not in BACKENDS:
-        raise ValueError(f"unknown physics backend {name!r}; expected 'auto' or one of {BACKENDS}")
-    return name
-
-
-def sole_contacts(data: mjx.Data, sole_geoms: np.ndarray) -> jnp.ndarray:
-    """(8,) 1.0 where a sole sphere touches (penetrates) the terrain, from the culled contacts."""
-    c = data._impl.contact
-    active = c.dist < CONTACT_DIST_M
-    g = jnp.asarray(sole_geoms.reshape(-1))
-    hit = (c.geom[None, :, 0] == g[:, None]) | (c.geom[None, :, 1] == g[:, None])
-    return jnp.any(hit & active[None, :], axis=1).astype(jnp.float32)
 
 
 class BipedEnv(Env):
@@ -513,34 +464,6 @@ class BipedEnv(Env):
             f"reward/{k}": v for k, v in terms.items()}
 
 
-def kinds_met(x, art_x0, art_kind, detect_range_m: float):
-    """(3,) float32: 1 for each artifact kind (terrain.ARTIFACT_KINDS order) whose detection zone the CoM
-    at `x` [m] has entered (start - `detect_range_m` <= x). At an episode's end: the kinds it met,
-    which shows whether `mixed` training episodes are long enough to see every kind."""
-    reached = detection_zone_entered(x, art_x0, art_kind, detect_range_m)
-    codes = jnp.arange(len(terrain.ARTIFACT_KINDS))
-    return jnp.any(reached[None, :] & (art_kind[None, :] == codes[:, None]), axis=1).astype(
-        jnp.float32)
-
-
-def detection_zone_entered(x, art_x0, art_kind, detect_range_m: float):
-    """(A,) bool: artifacts (not padding) whose detection zone the CoM at `x` [m] has entered."""
-    return (art_x0 - detect_range_m <= x) & (art_kind >= 0)
-
-
-def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: float):
-    """Kind of the artifact a fall at `x` [m] is blamed on, or -1 (flat ground).
-
-    The latest artifact whose detection zone has begun (start - `detect_range_m` <= x) is blamed
-    while x is within `after_m` past its end. The flats between artifacts are shorter than
-    `detect_range_m + after_m`, so in the overlap the next artifact wins: a fall there comes after
-    the detector names it and the switch to its policy, as Table II's failure columns need.
-    Artifacts are sorted by x; padding (kind -1) sits at `terrain.FAR_X_M`."""
-    reached = detection_zone_entered(x, art_x0, art_kind, detect_range_m)
-    i = jnp.maximum(jnp.sum(reached) - 1, 0)
-    return jnp.where(jnp.any(reached) & (x <= art_x1[i] + after_m), art_kind[i], -1)
-
-
 def make_env(kind: str = "walk", init: str = "stand", curriculum_cfg=None, terrain_cfg=None,
              n_artifacts: int | None = None, tracks=None, **overrides) -> BipedEnv:
     """The one env factory: a BipedEnv on `kind` tracks with env-config overrides (e.g.
@@ -557,4 +480,3 @@ def make_env(kind: str = "walk", init: str = "stand", curriculum_cfg=None, terra
             raise KeyError(f"unknown env config key {k!r}")
         cfg[k] = v
     return BipedEnv(cfg, terrain_cfg=terrain_cfg, curriculum_cfg=curriculum_cfg, tracks=tracks)
-

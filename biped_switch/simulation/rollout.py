@@ -26,7 +26,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from biped_switch.terrain import ARTIFACT_KINDS
+from biped_switch.simulation.terrain import ARTIFACT_KINDS
 
 PolicyFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs batch, rng) -> action batch
 # act(carry, state, live, key) -> (action batch, carry, aux): `state` the batch's env states

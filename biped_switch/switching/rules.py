@@ -29,10 +29,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_switch import policies as pol
+from biped_switch.learning import policies as pol
 from biped_switch.config import default_switching_config
-from biped_switch.rollout import episode_keys, reset_by_track, run_episodes
-from biped_switch.terrain import ARTIFACT_KINDS
+from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
+from biped_switch.simulation.terrain import ARTIFACT_KINDS
 
 METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator")
 METHOD_INDEX = {m: i for i, m in enumerate(METHODS)}
@@ -90,16 +90,6 @@ class SwitchState(NamedTuple):
     random_m: jax.Array  # random method: this artifact's switch distance [m]
     n_switches: jax.Array  # int32
     est_run: jax.Array  # int32: control steps in a row the detected target's E >= threshold
-
-
-def smoothed_success_pct(rate: np.ndarray, count: np.ndarray, bins: int) -> np.ndarray:
-    """% success per 1 cm bin as a count-weighted moving mean over `bins` bins (the paper's Fig. 4b,
-    drawn by sweep.plot_switch_success and the notebook); NaN where no point is near."""
-    k = np.ones(bins)
-    s = np.convolve(np.nan_to_num(rate * count), k, "same")
-    n = np.convolve(count, k, "same")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return 100 * s / n
 
 
 def init_state(n_envs: int) -> SwitchState:

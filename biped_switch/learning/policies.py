@@ -19,13 +19,12 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from biped_switch import ppo
-from biped_switch import runs as runs_lib
-from biped_switch import terrain
-from biped_switch.provenance import rel
+from biped_switch.learning import ppo
+from biped_switch.learning import checkpoints as ckpt_lib
+from biped_switch.learning import runs as runs_lib
+from biped_switch.names import POLICY_INDEX, POLICY_NAMES  # noqa: F401  (re-exported)
+from biped_switch.paths import rel
 
-POLICY_NAMES = ("walk",) + terrain.ARTIFACT_KINDS  # ("walk", "jumps", "gaps", "stairs")
-POLICY_INDEX = {n: i for i, n in enumerate(POLICY_NAMES)}
 
 ApplyFn = Callable[[object, jax.Array], jax.Array]  # (one policy's params, obs (B, O)) -> (B, 12)
 
@@ -67,7 +66,7 @@ def policy_apply(cfg, env, deterministic: bool = True):
 def load_policy(ckpt: pathlib.Path, env, deterministic: bool = True):
     """(batched policy (obs, rng) -> action, progress dict) of a checkpoint, with its run's network.
     `env` must have been made with `runs.policy_env_overrides(ckpt)`."""
-    tree, progress = runs_lib.load_checkpoint(ckpt)
+    tree, progress = ckpt_lib.load_checkpoint(ckpt)
     cfg = runs_lib.run_config(ckpt.parent.parent)
     need = runs_lib.env_overrides(cfg)
     wrong = {k: (env.cfg[k], v) for k, v in need.items() if env.cfg[k] != v}
@@ -158,7 +157,7 @@ def load_suite(init: str, env, runs: str | pathlib.Path = "runs",
     params, sources = [], []
     for n in names:
         ckpt = found[n]
-        tree, prog = runs_lib.load_checkpoint(ckpt)
+        tree, prog = ckpt_lib.load_checkpoint(ckpt)
         if not (isinstance(tree, dict) and {"params", "norm"} <= set(tree)):
             raise ValueError(f"{ckpt}: not a checkpoint of biped_switch.train (a "
                              f"{type(tree).__name__} without params/norm: Brax's format?)")

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from flax import linen
 
-from biped_switch.env import STATE_SIZE
+from biped_switch.simulation.env import STATE_SIZE
 
 
 class EncodedMLP(linen.Module):

@@ -1,0 +1,109 @@
+"""Training curves of a run folder's metrics.csv: PPO's and the DQN's, one figure module for both (the notebooks draw through it too). Plain Python and matplotlib."""
+
+from __future__ import annotations
+
+import csv
+import pathlib
+
+from biped_switch.learning.runs import curve_series
+
+
+def ppo_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
+    """Training curves of a run (metrics.csv): episode reward and length, eval reward per step,
+    curriculum values, against environment steps."""
+    # lazy: matplotlib loads slowly and only the plots need it; the backend is chosen before pyplot
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader((pathlib.Path(run_dir) / "metrics.csv").open()))
+    # rows of a window in which no episode ended carry no episode statistics (runs of before
+    # 2026-12-01 logged zeros there; an ended episode lasts at least one step)
+    ep_rows = [r for r in rows if float(r.get("episode/length") or 0.0) > 0.0]
+
+    def series(key):
+        return curve_series(ep_rows if key.startswith("episode/") else rows, key)
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
+    for key, ax in (("episode/sum_reward", axes[0]), ("episode/length", axes[0].twinx())):
+        xy = series(key)
+        ax.plot(xy[:, 0], xy[:, 1], "-" if "reward" in key else ":", label=key)
+        ax.set_ylabel(key)
+    axes[0].set_title("training episodes")
+    xy = series("eval/reward_per_step")
+    axes[1].plot(xy[:, 0], xy[:, 1], "o-", label="reward per step")
+    axes[1].set_ylabel("reward per step")
+    fell_ax = axes[1].twinx()
+    xy = series("eval/fell")
+    fell_ax.plot(xy[:, 0], xy[:, 1], "r.:", label="fell")
+    fell_ax.set_ylabel("fraction fell", color="r")
+    fell_ax.set_ylim(-0.02, 1.02)
+    axes[1].set_title("milestone rollout (current curriculum; 5 s to session 6, then 20 s)")
+    for key in ("difficulty", "guide_scale", "push_scale"):  # logged with every epoch
+        xy = series(key)
+        axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)
+    axes[2].set_title("curriculum")
+    axes[2].legend(fontsize=8)
+    save_curves(fig, axes, run_dir, out_png)
+
+
+def save_curves(fig, axes, run_dir, out_png) -> None:
+    """The common end of a run's curve figure: step axes, the run as the title, saved, closed."""
+    import matplotlib.pyplot as plt
+
+    for ax in axes:
+        ax.set_xlabel("environment steps")
+    fig.suptitle(str(run_dir))
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+
+
+def dqn_curves(run_dir, out_png) -> None:
+    """The DQN's learning curves (metrics.csv, one row per jitted call): episode return and
+    success, the share of steps on the oracle's policy, and the TD loss, Q and epsilon."""
+    import matplotlib  # lazy, as runs.plot_curves
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with (pathlib.Path(run_dir) / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    ep_rows = [r for r in rows if float(r.get("episodes") or 0) > 0]
+
+    def series(key, src=rows):
+        return curve_series(src, key)
+
+    eval_rows = [r for r in rows if r.get("eval_success") not in (None, "")]
+    fig, axes = plt.subplots(1, 4 if eval_rows else 3, figsize=(20 if eval_rows else 15, 3.6))
+    for key, ax, style in (("episode_env_return", axes[0], "-"),
+                           ("episode_success", axes[0].twinx(), "g:")):
+        xy = series(key, ep_rows)
+        ax.plot(xy[:, 0], xy[:, 1], style, label=key)
+        ax.set_ylabel(key)
+    axes[0].set_title("training episodes (epsilon-greedy)")
+    for key in ("correct_choice_frac", "epsilon"):
+        xy = series(key)
+        axes[1].plot(xy[:, 0], xy[:, 1], label=key)
+    axes[1].set_ylim(-0.02, 1.02)
+    axes[1].legend(fontsize=8)
+    axes[1].set_title("choice = the oracle's policy; exploration")
+    xy = series("loss")
+    axes[2].plot(xy[:, 0], xy[:, 1], label="TD loss (Huber)")
+    axes[2].set_ylabel("loss")
+    q_ax = axes[2].twinx()
+    xy = series("q_mean")
+    q_ax.plot(xy[:, 0], xy[:, 1], "r:", label="mean Q")
+    q_ax.set_ylabel("mean Q", color="r")
+    axes[2].set_title("learning")
+    if eval_rows:
+        n_ep = int(float(eval_rows[-1].get("eval_episodes") or 0))
+        for key in ("eval_success", "eval_progress", "eval_fell"):
+            xy = series(key, eval_rows)
+            axes[3].plot(xy[:, 0], xy[:, 1], "o-", ms=3, label=key.removeprefix("eval_"))
+        axes[3].set_ylim(-0.02, 1.02)
+        axes[3].set_xlim(axes[0].get_xlim())  # the same steps as the others (it may start late)
+        axes[3].legend(fontsize=8)
+        axes[3].set_title(f"greedy selector, {n_ep} fixed training tracks (each chunk)")
+    save_curves(fig, axes, run_dir, out_png)

@@ -1,0 +1,265 @@
+"""Table II as tables: failures by context, switch outcomes, the paper's claims, Markdown and provenance. Plain Python and NumPy, no JAX."""
+
+from __future__ import annotations
+
+import math
+import numpy as np
+from biped_switch import paper
+from biped_switch.reports import provenance as prov
+from biped_switch.names import ARTIFACT_KINDS, HEURISTICS
+from biped_switch.config import default_env_config
+from biped_switch.stats import dist_success_cells, pct_ci, pct_ci_cell
+
+
+def _reached(track, progress_frac: float, detect_range_m: float) -> tuple[float, list[int]]:
+    """(x [m] of the trial's end, the indices of the artifacts whose detection zone it entered).
+    Positions come from `progress_frac` along start -> finish line (the start taken at x = 0:
+    a few cm off)."""
+    x = float(progress_frac) * track.finish_x_m
+    return x, [k for k, (_, a0, _) in enumerate(track.artifacts) if a0 - detect_range_m <= x]
+
+
+def failures_by_context(tracks, progress_frac, fell, fail_kind,
+                        detect_range_m: float | None = None) -> dict:
+    """{kind: {previous kind or "start": [reached, fell on it]}} over trials on `tracks`.
+
+    Why a row fails, by where: an artifact is reached when the body came within `detect_range_m`
+    of its start; a trial that fell is charged to the last artifact it reached if the env blamed
+    that artifact's kind (`fail_kind`, env.blame_kind). `detect_range_m` defaults to the env's
+    detection range."""
+    if detect_range_m is None:
+        detect_range_m = float(default_env_config().detect_range_m)
+    out = {k: {} for k in ARTIFACT_KINDS}
+    for i, t in enumerate(tracks):
+        arts = t.artifacts
+        _, reached = _reached(t, progress_frac[i], detect_range_m)
+        for k in reached:
+            kind, prev = arts[k][0], ("start" if k == 0 else arts[k - 1][0])
+            cell = out[kind].setdefault(prev, [0, 0])
+            cell[0] += 1
+            cell[1] += int(k == reached[-1] and fell[i] > 0.5
+                           and int(fail_kind[i]) == ARTIFACT_KINDS.index(kind))
+    return out
+
+
+def switch_outcomes(tracks, switch_ahead_m, progress_frac, fell, fail_kind,
+                    detect_range_m: float | None = None) -> list[dict]:
+    """One record per switch into an artifact's policy: {"kind", "prev" (the artifact before it, or
+    "start"), "ahead_m" (CoM to its start when switched), "outcome": "fell" (the trial fell on
+    this artifact, as `failures_by_context` charges it), "crossed" (the CoM passed its end) or
+    "open" (time ran out first)}. Trials are `tracks` (terrain.Track, trial order)."""
+    if detect_range_m is None:
+        detect_range_m = float(default_env_config().detect_range_m)
+    out = []
+    for i, t in enumerate(tracks):
+        arts = t.artifacts
+        x, reached = _reached(t, progress_frac[i], detect_range_m)
+        last = reached[-1] if reached else -1
+        for k, (kind, _, a1) in enumerate(arts):
+            ahead = float(switch_ahead_m[i][k])
+            if np.isnan(ahead):
+                continue
+            fell_here = (k == last and fell[i] > 0.5
+                         and int(fail_kind[i]) == ARTIFACT_KINDS.index(kind))
+            out.append({"kind": kind, "prev": "start" if k == 0 else arts[k - 1][0],
+                        "ahead_m": ahead,
+                        "outcome": "fell" if fell_here else ("crossed" if x > a1 else "open")})
+    return out
+
+
+def switch_summary(records: list[dict], forced_m: float = 0.01) -> dict:
+    """{kind: {prev: {"n", "ahead_m_q" (quartiles [m]), "forced_pct" (switched within
+    `forced_m`: the rule never fired), "lost_pct" (fell on it), "lost_by_ahead": [[bin lo, bin hi,
+    n, fell], ...] (0.1 m bins)}}."""
+    out = {}
+    for kind in ARTIFACT_KINDS:
+        for prev in sorted({r["prev"] for r in records if r["kind"] == kind},
+                           key=lambda q: (q != "start", q)):
+            rs = [r for r in records if r["kind"] == kind and r["prev"] == prev]
+            ahead = np.array([r["ahead_m"] for r in rs])
+            lost = np.array([r["outcome"] == "fell" for r in rs])
+            edges = np.round(np.arange(0.0, 1.0, 0.1), 2)
+            # the first bin takes the forced switches a step past the start too (ahead < 0)
+            bins = [[float(lo), round(float(lo) + 0.1, 2), int(m.sum()), int(lost[m].sum())]
+                    for lo in edges for m in [((ahead >= lo) | (lo == 0)) & (ahead < lo + 0.1)]
+                    if m.any()]
+            out.setdefault(kind, {})[prev] = {
+                "n": len(rs), "ahead_m_q": [float(q) for q in np.quantile(ahead, (0.25, 0.5, 0.75))],
+                "forced_pct": float(100 * np.mean(ahead <= forced_m)),
+                "lost_pct": float(100 * lost.mean()), "lost_by_ahead": bins}
+    return out
+
+
+def switches_markdown(by_method: dict) -> str:
+    """One table per artifact kind: where each method switched into its policy, by the artifact
+    before it, and how often that artifact was then lost."""
+    lines = []
+    for kind in ARTIFACT_KINDS:
+        lines += [f"**into {kind}**: switch distance before it, median (quartiles) [m]; % forced "
+                  f"(within 1 cm); % lost (fell on it)", "",
+                  "| method | after | switches | distance [m] | % forced | % lost |",
+                  "|---|---|---|---|---|---|"]
+        for m, d in by_method.items():
+            for prev, c in d.get(kind, {}).items():
+                q1, q2, q3 = c["ahead_m_q"]
+                lines.append(f"| {m} | {prev} | {c['n']:,} | {q2:.2f} ({q1:.2f}-{q3:.2f}) | "
+                             f"{c['forced_pct']:.1f} | {c['lost_pct']:.1f} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def failures_markdown(by_method: dict) -> str:
+    """One table per artifact kind: % fell on it (fell / reached) by the artifact before it."""
+    lines = []
+    for kind in ARTIFACT_KINDS:
+        prevs = sorted({p for d in by_method.values() for p in d[kind]},
+                       key=lambda p: (p != "start", p))
+        lines += [f"**{kind}**, fell on it / reached, by the artifact before it", "",
+                  "| method | " + " | ".join(f"after {p}" for p in prevs) + " |",
+                  "|---|" + "---|" * len(prevs)]
+        for m, d in by_method.items():
+            cells = [(f"{f:,} / {n:,} ({100 * f / n:.1f}%)" if n else "-")
+                     for n, f in (d[kind].get(p, [0, 0]) for p in prevs)]
+            lines.append(f"| {m} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def compare(a: dict, b: dict, key: str = "success") -> int:
+    """+1 when row a's 95% CI on `key` ("success" or "distance") lies wholly above b's, -1 wholly
+    below, 0 when they overlap (no difference claimed)."""
+    (alo, ahi), (blo, bhi) = a[f"{key}_ci"], b[f"{key}_ci"]
+    return 1 if alo > bhi else (-1 if ahi < blo else 0)
+
+
+def _cell(r: dict) -> str:
+    return f"{r['method']} {pct_ci(r['success_pct'], r['success_ci'])}"
+
+
+def paper_claims(rows: list[dict]) -> list[dict]:
+    """The paper's four Table II claims, tested on our rows by their 95% CIs on % success
+    (`compare`): {claim, verdict, evidence}. verdict: "holds", "fails" (with the rows that break
+    it) or "not tested" (a row it needs was not run). "Comparable" means overlapping CIs."""
+    by = {r["method"]: r for r in rows}
+
+    def beats_all(m, others, show_all: bool):
+        """(verdict, evidence) of "row m beats each of `others`": every row's cell and the names
+        not beaten (`show_all`, a few rows), else the cells of those not beaten only."""
+        if not others:
+            return "not tested", f"{_cell(by[m])}; no other rows"
+        lost = [o for o in others if compare(by[m], by[o]) < 1]
+        if show_all:
+            ev = "; ".join(_cell(by[r]) for r in (m, *others))
+            return ("fails", f"{ev}; not beaten: {', '.join(lost)}") if lost else ("holds", ev)
+        if lost:
+            return "fails", f"{_cell(by[m])}; not beaten: " + "; ".join(_cell(by[o]) for o in lost)
+        return "holds", f"{_cell(by[m])}; above all {len(others)} other rows"
+
+    def dqn_vs_estimator():
+        c = compare(by["dqn"], by["estimator"])
+        return ("holds" if c == 0 else "fails", f"{_cell(by['dqn'])}; {_cell(by['estimator'])}"
+                + ("" if c == 0 else f"; the DQN is {'better' if c > 0 else 'worse'}"))
+
+    claims = (  # (claim, rows it needs, test)
+        ("the estimator beats every heuristic (success)", ("estimator", *HEURISTICS),
+         lambda: beats_all("estimator", HEURISTICS, show_all=True)),
+        ("without overlap the estimator collapses (success)", ("estimator", "estimator_no_overlap"),
+         lambda: ("holds" if compare(by["estimator_no_overlap"], by["estimator"]) < 0 else "fails",
+                  f"{_cell(by['estimator_no_overlap'])}; {_cell(by['estimator'])}")),
+        ("the DQN is comparable to the estimator (overlapping success CIs)", ("dqn", "estimator"),
+         dqn_vs_estimator),
+        ("end-to-end is best (success)", ("end_to_end",),
+         lambda: beats_all("end_to_end", [m for m in by if m != "end_to_end"], show_all=False)),
+    )
+    out = []
+    for claim, need, test in claims:
+        missing = [m for m in need if m not in by]
+        verdict, evidence = (("not tested", "missing rows: " + ", ".join(missing)) if missing
+                             else test())
+        out.append({"claim": claim, "verdict": verdict, "evidence": evidence})
+    return out
+
+
+def claims_markdown(claims: list[dict]) -> str:
+    lines = ["| the paper's claim | on our system | evidence: % success (95% CI) |", "|---|---|---|"]
+    lines += [f"| {c['claim']} | {c['verdict']} | {c['evidence']} |" for c in claims]
+    return "\n".join(lines)
+
+
+def table2_markdown(rows: list[dict]) -> str:
+    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail (CI) | "
+             "% jump fail (CI) | % stair fail (CI) | paper (dist. / success / gap / jump / stair) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ref = paper.TABLE2.get(r["method"])
+        f = r["fail_on"]
+        lines.append(
+            f"| {r['method']} | {r['n']} | {dist_success_cells(r)} | "
+            + " | ".join(pct_ci(f[k], r["fail_ci"][k]) for k in paper.TABLE2_FAIL_ORDER) + " | "
+            + (" / ".join(f"{v}" for v in ref) if ref else "-") + " |")
+    return "\n".join(lines)
+
+
+def table2_rows(doc: dict, with_paper_only: bool = True):
+    """(headers, rows) of a table2.json as the notebook prints it, each method beside the paper's
+    row; with `with_paper_only`, the paper's methods not run here as "not run" rows."""
+    headers = ["method", "init", "trials", "% dist. (95% CI)", "% success (95% CI)", "% gap fail",
+               "% jump fail", "% stair fail", "switches/trial",
+               "paper dist. / success / gap / jump / stair"]
+    rows, seen = [], set()
+    for r in doc["rows"]:
+        f, p = r["fail_on"], paper.TABLE2.get(r["method"])
+        seen.add(r["method"])
+        rows.append([r["method"], r["init"], r["n"], pct_ci_cell(r["distance_pct"], r.get("distance_ci")),
+                     pct_ci_cell(r["success_pct"], r.get("success_ci")), f"{f['gaps']:.1f}",
+                     f"{f['jumps']:.1f}", f"{f['stairs']:.1f}",
+                     f"{r.get('switches_per_trial', math.nan):.2f}",
+                     " / ".join(f"{v}" for v in p) if p else "-"])
+    if with_paper_only:
+        for m, p in paper.TABLE2.items():
+            if m not in seen:
+                rows.append([m, "-", "not run", "-", "-", "-", "-", "-", "-",
+                             " / ".join(f"{v}" for v in p)])
+    return headers, rows
+
+
+def table2_provenance(doc: dict, path, print_fn=print) -> list[str]:
+    """Prints where a table2.json's rows come from (settings, methods not run, each init's
+    policies) and its verdict; returns the reasons it is a pipeline check ([] if none)."""
+    s, rows = doc.get("settings", {}), doc["rows"]
+    fmt = prov.fmt
+    print_fn(f"file: {prov.rel(path)}")
+    for k in ("trials", "seed", "horizon_s", "n_artifacts", "stand_in", "guide_scale", "runs",
+              "estimators", "dqn", "lookup"):
+        print_fn(f"  {k}: {fmt(s.get(k))}")
+    for sk in doc.get("skipped") or []:
+        print_fn(f"  not run: {sk}")
+    print_fn(f"  device: {fmt(doc.get('device'))}   track_seed: {fmt(doc.get('track_seed'))}   "
+             f"wall: {fmt(round(doc['wall_s'])) if doc.get('wall_s') is not None else 'not recorded'} s")
+    reasons, seen, subs = [], set(), {}
+    for r in rows:
+        srcs = tuple(r.get("policies") or ())
+        if srcs and (r["init"], srcs) not in seen:
+            seen.add((r["init"], srcs))
+            print_fn(f"  policies ({r['init']} init), walk/jumps/gaps/stairs:")
+            for src in srcs:
+                print_fn(f"    {src}")
+            subs[r["init"]] = [x.split(":")[0].removeprefix("stand-in for ")
+                               for x in prov.stand_ins(srcs)]
+    for r in rows:
+        if r.get("switch_parts"):
+            print_fn(f"  {r['method']} switches with: " + "; ".join(r["switch_parts"]))
+    subs = {k: v for k, v in subs.items() if v}
+    if subs:
+        reasons.append("stand-in policies: " + "; ".join(f"{k} init {', '.join(v)}"
+                                                         for k, v in subs.items()))
+    if s.get("stand_in"):
+        reasons.append(f"--stand-in {s['stand_in']}")
+    if (s.get("guide_scale") or 0) > 0:
+        reasons.append(f"scripted guide forces on (guide_scale {s['guide_scale']:g})")
+    if s.get("n_artifacts") not in (None, paper.ARTIFACTS):
+        reasons.append(f"{s['n_artifacts']} artifacts per track (paper: {paper.ARTIFACTS})")
+    mismatch = sorted({x for r in rows for x in (r.get("policies") or ()) if "MISMATCH" in str(x)})
+    if mismatch:
+        reasons.append("DQN selector trained with other policies than those evaluated")
+    return prov.conclude(doc, reasons, rows, paper.TRIALS["table2"], "method", print_fn=print_fn)

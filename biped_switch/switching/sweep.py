@@ -1,0 +1,448 @@
+"""Switch-point sweeps (paper Sec. III-C): estimator data and lookup tables.
+
+    python -m biped_switch.sweep --init stand [--targets jumps gaps stairs] [--points 100000]
+
+For a target policy i and every other policy j, pi_j walks up to a single artifact of kind i; the
+artifact is detected 0.9 m ahead and pi_i takes over at a distance U(0, 0.9) m before it. The five
+observations (robot state + heightmap) at control steps t-2 .. t+2 around the switch step t form
+one sample, labelled 1 when the robot then makes `steps_past` (2) steps with the foot centre past
+the artifact's end without falling (a step: a landing of the other foot than the last step's, so
+two steps need each foot; see `count_steps_past`), or reaches the finish line, else 0 (a fall, or
+neither within `horizon_s`).
+Episodes that fall before the switch, or never reach the switch point, give no sample. Sources
+cycle j over the other three policies, so every pair gets a third of the samples.
+
+One jitted rollout runs a batch of episodes (split over every local device with pmap) until all
+have a label; batches are saved as parts under runs/sweeps/<init>/<target>/ and a rerun resumes
+after the last part; the parts are merged into runs/sweeps/<init>/<target>.npz (the estimator's
+input, see estimator.py for the fields). The lookup table (success rate per 1 cm of switch
+distance for each pair j -> i, and its argmax) and the success-against-distance figure (the
+paper's Fig. 4b) go to experiments/results/lookup/.
+
+    python -m biped_switch.sweep --init stand --context [--targets gaps]
+
+A *context* sweep (ours, not the paper's) switches where the switching controller does on a
+`mixed` track: an artifact policy j first crosses its own artifact and hands over before the next
+one, of kind i (two-artifact tracks [j, i]); walk, which only ever acts before the first artifact,
+switches before an [i, other] track's first. The paper's sweep starts every source on flat ground,
+so its data never hold the states just after an artifact, where Table II's switches happen. Data,
+lookup table and figure are named `<init>_context`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import pathlib
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_switch.simulation import env as env_lib
+from biped_switch.learning import policies as pol
+from biped_switch.simulation import terrain
+from biped_switch.config import SWEEP_TRACK_SEED, default_terrain_config
+from biped_switch.switching.estimator import HM_SIZE, sweep_name
+from biped_switch.simulation.rollout import episode_keys, over_devices, reset_by_track, run_episodes
+
+N_WINDOW = 5
+WINDOW_BEFORE = 2  # points before the switch step in the window (t-2, t-1)
+
+
+# ----------------------------------------------------------------------- labelling (pure)
+def touchdowns(contact, contact_prev) -> jax.Array:
+    """(2,) 1 where the left / right foot lands now: some sole touches and none did a step ago."""
+    now = contact.reshape(2, 4).max(axis=1) > 0.5
+    before = contact_prev.reshape(2, 4).max(axis=1) > 0.5
+    return now & ~before
+
+
+LEFT, RIGHT, NO_FOOT = 0, 1, -1  # `Labelling.last_foot` values
+
+
+def count_steps_past(steps, last_foot, contact, contact_prev, soles_x, art_end_x):
+    """(steps, last_foot) updated with this step's landings of feet whose centre is past the end.
+
+    A step is a landing of the other foot than the one that made the last step there, so one foot
+    landing twice (a bounce, a shuffle) is one step and `steps >= 2` means both feet have landed
+    past the end. Both feet landing together (after a hop) is one step; either foot's next
+    landing is then the second."""
+    feet_x = soles_x.reshape(2, 4).mean(axis=1)
+    land = touchdowns(contact, contact_prev) & (feet_x > art_end_x)
+    both = land[0] & land[1]
+    new = both | (land[0] & (last_foot != LEFT)) | (land[1] & (last_foot != RIGHT))
+    last = jnp.where(both, NO_FOOT, jnp.where(land[0], LEFT, jnp.where(land[1], RIGHT, last_foot)))
+    return steps + new.astype(jnp.int32), last
+
+
+class Labelling(NamedTuple):
+    """Per-env label state of a switch episode (leading batch axes allowed)."""
+
+    steps: jax.Array  # int32: steps past the artifact's end after the switch (count_steps_past)
+    last_foot: jax.Array  # int32: LEFT / RIGHT / NO_FOOT, the foot of the last step there
+    ended: jax.Array  # bool: fell, labelled, or the env's episode is over: the record is final
+    label: jax.Array  # bool
+    fell: jax.Array  # bool
+    fell_before: jax.Array  # bool: fell before the switch (no sample)
+
+
+def labelling_init(shape=()) -> Labelling:
+    z = jnp.zeros(shape, jnp.int32)
+    f = jnp.zeros(shape, bool)
+    return Labelling(z, z + NO_FOOT, f, f, f, f)
+
+
+def is_live(lab: Labelling, t, horizon) -> jax.Array:
+    """The episode still runs at control step t: not ended and within the horizon (a timeout
+    leaves the label 0)."""
+    return ~lab.ended & (t < horizon)
+
+
+def label_step(lab: Labelling, live, switched_before, switched, contact, contact_prev, soles_x,
+               art_end_x, fell, success, done, steps_past: int) -> Labelling:
+    """One control step of the label rule for one env.
+
+    `contact`, `contact_prev`, `soles_x` are this step's (the observation's) sole flags and sole x
+    [m]; `fell`, `success`, `done` (bool) come from the env step taken from it. Landings count
+    from the step after the switch (`switched_before`). Label 1 once `steps_past` steps are made
+    past the end (or the finish is reached) and that step's env step does not fall; a fall first,
+    the env's episode ending or the horizon leave 0. Once labelled the record is final."""
+    steps, last = count_steps_past(lab.steps, lab.last_foot, contact, contact_prev, soles_x,
+                                   art_end_x)
+    counting = live & switched_before
+    steps = jnp.where(counting, steps, lab.steps)
+    last = jnp.where(counting, last, lab.last_foot)
+    fell = live & fell
+    label = live & switched & ((steps >= steps_past) | success) & ~fell
+    ended = lab.ended | fell | label | (live & done)
+    return Labelling(steps, last, ended, lab.label | label, lab.fell | fell,
+                     lab.fell_before | (fell & ~switched))
+
+
+class Window(NamedTuple):
+    """Rolling record of observations around a switch, per env."""
+
+    ring: jax.Array  # (WINDOW_BEFORE + 1, O): the last three observations, oldest first
+    window: jax.Array  # (N_WINDOW, O)
+    n_after: jax.Array  # int32: observations after the switch written so far (0..2)
+
+
+def window_init(obs) -> Window:
+    ring = jnp.broadcast_to(obs, (WINDOW_BEFORE + 1,) + obs.shape)
+    return Window(ring, jnp.zeros((N_WINDOW,) + obs.shape, obs.dtype), jnp.zeros((), jnp.int32))
+
+
+def window_update(w: Window, obs, switched_now, switched_before) -> Window:
+    """`obs` is the observation the (possibly new) policy acts on at this step.
+
+    At the switch step t the ring (t-2, t-1, t) fills the first three slots; each of the next two
+    steps writes one slot. An episode that ends first repeats its last observation."""
+    ring = jnp.concatenate([w.ring[1:], obs[None]])
+    window = jnp.where(switched_now, w.window.at[: WINDOW_BEFORE + 1].set(ring), w.window)
+    write = switched_before & (w.n_after < N_WINDOW - WINDOW_BEFORE - 1)
+    slot = WINDOW_BEFORE + 1 + w.n_after
+    window = jnp.where(write, window.at[jnp.minimum(slot, N_WINDOW - 1)].set(obs), window)
+    return Window(ring, window, w.n_after + write.astype(jnp.int32))
+
+
+def window_fill(w: Window) -> jax.Array:
+    """The window with missing after-switch slots (episode ended) filled by the last written."""
+    idx = jnp.minimum(jnp.arange(N_WINDOW), WINDOW_BEFORE + w.n_after)
+    return w.window[idx]
+
+
+# ----------------------------------------------------------------------- the rollout
+def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, switch_max_m: float,
+                  steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0,
+                  end_offset_m: float = 0.0, target_index=None) -> dict:
+    """A batch of switch episodes (one env per track id), switching before artifact
+    `target_index` (B,) of each track (default 0: the first; context sweeps switch before the 2nd).
+
+    `sources` (B,) policy index acting before the switch, `target` the index switched to;
+    `guide_scale` > 0 turns the scripted gait's guide forces on and `end_offset_m` moves the line
+    past which steps count from the artifact's end (tests only: the guided robot never crosses an
+    artifact, so only a line moved back gives it labels of 1)."""
+    n = track_ids.shape[0]
+    reset_keys, k_u = episode_keys(rng, n)
+    state = reset_by_track(env, reset_keys, track_ids, guide_scale=guide_scale)
+    switch_at = jax.random.uniform(k_u, (n,), maxval=switch_max_m)
+    tidx = (jnp.zeros(n, jnp.int32) if target_index is None
+            else jnp.asarray(target_index, jnp.int32))
+    carry = {"active": sources.astype(jnp.int32), "switched": jnp.zeros(n, bool),
+             "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
+             "win": jax.vmap(window_init)(state.obs)}
+    label_steps = jax.vmap(functools.partial(label_step, steps_past=steps_past))
+
+    def act(c, state, live, _):
+        si = jax.vmap(env.switch_inputs)(state)
+        det = si["detect"]
+        now = (live & ~c["switched"] & (det["kind"] >= 0) & (det["index"] == tidx)
+               & (det["dist_m"] <= switch_at))
+        active = jnp.where(now, target, c["active"])
+        win = jax.vmap(window_update)(c["win"], state.obs, now, c["switched"] & live)
+        action = pol.select(pol.all_actions(apply, params, state.obs), active)
+        return action, {**c, "active": active, "switched": c["switched"] | now, "win": win,
+                        "dist_m": jnp.where(now, det["dist_m"], c["dist_m"])}, (si, c["switched"])
+
+    def record(c, aux, state, nxt, live):
+        si, switched_before = aux
+        # touchdowns counted on the observation's own contact flags (this step vs the last)
+        lab = label_steps(c["lab"], live, switched_before, c["switched"], si["contact"],
+                          si["contact_prev"], si["soles"][..., 0],
+                          jnp.take_along_axis(state.info["art_x1"], tidx[:, None], 1)[:, 0]
+                          + end_offset_m,
+                          nxt.metrics["fell"] > 0.5, nxt.metrics["success"] > 0.5, nxt.done > 0.5)
+        return {**c, "lab": lab}, lab.ended  # a label (or a fall) ends the episode
+
+    # Ended episodes are frozen (`freeze_state`). Not needed for the record (it reads only live
+    # steps), but it keeps the compiled step bit-identical to the env's own: the window test
+    # compares observations to 1e-4 after ~200 chaotic contact steps, and a regrouped program
+    # drifts.
+    ep = run_episodes(env, state, horizon, act, carry, record=record, chunk=chunk,
+                      freeze_state=True)
+    c, lab = ep.carry, ep.carry["lab"]
+    # the window is complete two steps after the switch; a label needs >= 2 steps, so later
+    valid = c["switched"] & ~lab.fell_before
+    return {"window": jax.vmap(window_fill)(c["win"]), "label": lab.label, "valid": valid,
+            "switch_dist_m": c["dist_m"], "switch_at_m": switch_at, "source": sources,
+            "track_id": track_ids, "fell": lab.fell, "steps": ep.length.astype(jnp.int32),
+            "steps_past": lab.steps}
+
+
+def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
+    """Single-artifact `target` tracks SWEEP_TRACK_SEED + i; `overrides` (env config: the physics
+    `backend`, the suite's action mode and phase clock) go to `env.make_env`."""
+    return env_lib.make_env(target, init, n_artifacts=1, n_tracks=n_tracks,
+                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
+
+
+def context_plan(target: str, n_tracks: int) -> tuple[list[list[str]], np.ndarray, np.ndarray]:
+    """(artifact kinds, source policy, target artifact index) per track of a context sweep.
+
+    Track i's source cycles over the other policies. On a `mixed` track an artifact policy hands
+    over after crossing its own artifact, and walk only before the first: so an artifact source
+    gets [its kind, target] and switches before the 2nd artifact; walk gets [target, another kind]
+    and switches before the 1st (the plain sweep's situation)."""
+    others = [j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]]
+    kinds, src, tidx = [], [], []
+    for i in range(n_tracks):
+        j = others[i % len(others)]
+        name = pol.POLICY_NAMES[j]
+        if name == "walk":
+            after = [k for k in terrain.ARTIFACT_KINDS if k != target]
+            kinds.append([target, after[(i // len(others)) % len(after)]])
+            tidx.append(0)
+        else:
+            kinds.append([name, target])
+            tidx.append(1)
+        src.append(j)
+    return kinds, np.asarray(src, np.int32), np.asarray(tidx, np.int32)
+
+
+def make_context_env(kinds, init: str, difficulty: float = 1.0, **overrides):
+    """Two-artifact tracks SWEEP_TRACK_SEED + i of the kinds `kinds[i]` (`context_plan`'s)."""
+    tcfg = default_terrain_config(2)
+    tracks = [terrain.sequence_track(SWEEP_TRACK_SEED + i, k, 1.0, tcfg)
+              for i, k in enumerate(kinds)]
+    return env_lib.make_env("mixed", init, terrain_cfg=tcfg, tracks=tracks, n_tracks=len(tracks),
+                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
+
+
+def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_index=None):
+    """(params, rng, track_ids, sources) -> batch results, split over all local devices;
+    `target_index` (n_tracks,) the artifact switched before on each track (default: the first)."""
+    horizon = int(round(cfg.horizon_s / env.dt))
+    tgt = pol.POLICY_INDEX[target]
+    tidx_of = None if target_index is None else jnp.asarray(target_index, jnp.int32)
+
+    def one(params, rng, ids, src):
+        return sweep_rollout(env, apply, params, rng, ids, src, tgt, cfg.switch_max_m,
+                             cfg.steps_past, horizon, guide_scale=guide_scale,
+                             target_index=None if tidx_of is None else tidx_of[ids])
+
+    return over_devices(one, n_shared=1)
+
+
+# ----------------------------------------------------------------------- the sweep driver
+def _split(window: np.ndarray):
+    """(robot state, heightmap) of observations: exactly the estimator's inputs (51 + 2400), without
+    the phase clock or any other columns the env appends after the heightmap."""
+    s = env_lib.STATE_SIZE
+    state = window[..., :s].astype(np.float32)
+    hm = window[..., s:s + HM_SIZE].astype(np.float16)
+    return state, hm
+
+
+def _part(out: dict, first_sample: int, window) -> tuple[dict, int]:
+    """A batch's valid samples as N_WINDOW rows each (the estimator's fields), and their count."""
+    v = np.asarray(out["valid"])
+    state, hm = _split(np.asarray(out["window"])[v])
+    n_s = int(v.sum())
+    k = np.repeat(np.arange(n_s), N_WINDOW)
+
+    def rows(x, dtype):
+        return np.repeat(np.asarray(x)[v], N_WINDOW).astype(dtype)
+
+    return {"state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
+            "label": rows(out["label"], np.int8),
+            "sample": (first_sample + np.flatnonzero(v)[k]).astype(np.int32),
+            "offset": np.tile(np.asarray(window, np.int8), n_s),
+            "source": rows(out["source"], np.int8),
+            "switch_dist_m": rows(out["switch_dist_m"], np.float32),
+            "track_id": rows(out["track_id"], np.int32)}, n_s
+
+
+# Every session adding parts to a sweep must share these; of the config only the keys below may
+# differ (more points extend a sweep; the lookup bin applies to the merged data only).
+RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed", "context")
+PROGRESS_CONFIG_KEYS = ("n_points", "lookup_bin_m")
+
+
+def resume_key(meta: dict) -> dict:
+    """The part of a sweep's meta (as JSON) that the parts already made depend on."""
+    key = json.loads(json.dumps({k: meta.get(k) for k in RESUME_KEYS}, default=str))
+    key["context"] = bool(key["context"])  # absent in sweeps made before context sweeps existed
+    key["config"] = {k: v for k, v in (key["config"] or {}).items()
+                     if k not in PROGRESS_CONFIG_KEYS}
+    return key
+
+
+class SweepRun(NamedTuple):
+    """One run_sweep call: the merged data, this session's own figures and the sweep's total."""
+
+    path: pathlib.Path  # the merged npz
+    points_new: int  # points made by this session
+    loop_s: float  # this session's batch loop (its first batch includes the compile)
+    steady_points: int  # points of this session's batches after the first
+    steady_s: float  # their time: the rate without the compile
+    session_s: float  # this session's wall time: setup, compile, loop, merge
+    wall_s_total: float  # the sweep's wall time summed over the sessions that made points
+
+
+def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
+              n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
+              print_fn=print, backend: str = "auto", context: bool = False) -> SweepRun:
+    """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind, on the
+    physics `backend`, in an env with the policy suite's env overrides. With `context`, the
+    tracks are `context_plan`'s two-artifact tracks and the data go to `<init>_context/`.
+
+    part_dir/meta.json keeps `wall_s_total`, the sum of the wall times of the sessions that ran
+    batches; it is updated after every part and on an exception, so an interrupted session's time
+    counts too (all but its last batch's if the process is killed)."""
+    t_start = time.perf_counter()
+    if target not in terrain.ARTIFACT_KINDS:
+        raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
+    name = sweep_name(init, context)
+    part_dir = out_dir / name / target
+    part_dir.mkdir(parents=True, exist_ok=True)
+    overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in)
+    if context:
+        kinds, track_src, track_tidx = context_plan(target, n_tracks)
+        env = make_context_env(kinds, init, cfg.difficulty, backend=backend, **overrides)
+    else:
+        track_src = track_tidx = None
+        env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
+    suite = pol.load_suite(init, env, runs, stand_in=stand_in)
+    meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
+            "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
+            "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale,
+            "env_overrides": dict(suite.env_overrides),
+            "backend": env_lib.resolve_backend(backend), "context": bool(context)}
+    meta_path = part_dir / "meta.json"
+    wall0 = 0.0
+    if meta_path.exists():
+        old = json.loads(meta_path.read_text())
+        k_old, k_new = resume_key(old), resume_key(meta)
+        if k_old != k_new:
+            diff = [k for k in RESUME_KEYS if k_old[k] != k_new[k]]
+            diff += [f"config.{k}" for k in sorted(set(k_old["config"]) | set(k_new["config"]))
+                     if "config" in diff and k_old["config"].get(k) != k_new["config"].get(k)]
+            raise RuntimeError(f"{part_dir} holds parts of a sweep with other {', '.join(diff)}; "
+                               f"move it away or pass another --out")
+        wall0 = float(old.get("wall_s_total", 0.0))
+
+    def write_meta(wall_s_total):
+        meta["wall_s_total"] = round(wall_s_total, 3)
+        meta_path.write_text(json.dumps(meta, indent=2, default=str))
+
+    write_meta(wall0)
+    others = np.array([j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]])
+    runner = make_runner(env, suite.apply, target, cfg, guide_scale, track_tidx)
+    parts = sorted(part_dir.glob("part_*.npz"))
+    have = sum(int(np.load(p)["label"].shape[0]) for p in parts)
+    b = len(parts)
+    if have:
+        print_fn(f"[sweep {name}/{target}] resuming: {len(parts)} parts, {have:,} points")
+    t0, pts0 = time.perf_counter(), have
+    steady_points, steady_s = 0, 0.0
+    batch = cfg.batch
+    ran = False  # whether this session ran a batch (a session that runs none adds no time)
+    try:
+        while have < cfg.n_points:
+            ran = True
+            t_b = time.perf_counter()
+            idx = np.arange(b * batch, (b + 1) * batch)
+            ids = jnp.asarray(idx % n_tracks, jnp.int32)
+            src = jnp.asarray(others[idx % len(others)] if track_src is None
+                              else track_src[idx % n_tracks], jnp.int32)
+            rng = jax.random.fold_in(jax.random.PRNGKey(seed), b)
+            out = jax.device_get(runner(suite.params, rng, ids, src))
+            part, n_s = _part(out, b * batch, cfg.window)
+            tmp = part_dir / f"tmp_{b:05d}.npz"
+            np.savez_compressed(tmp, **part)
+            tmp.rename(part_dir / f"part_{b:05d}.npz")
+            write_meta(wall0 + time.perf_counter() - t_start)
+            n_p, dt = len(part["label"]), time.perf_counter() - t_b
+            if b > len(parts):  # not this session's first batch (the compile)
+                steady_points, steady_s = steady_points + n_p, steady_s + dt
+            have += n_p
+            b += 1
+            left_min = max(cfg.n_points - have, 0) / max(
+                (have - pts0) / max(time.perf_counter() - t0, 1e-9), 1e-9) / 60
+            print_fn(f"[sweep {name}/{target}] batch {b}: {n_s}/{batch} valid samples, "
+                     f"{100 * part['label'].mean() if n_s else float('nan'):.0f}% success; "
+                     f"{have:,}/{cfg.n_points:,} points, {n_p / max(dt, 1e-9):,.0f} points/s this "
+                     f"batch ({dt:.1f} s), ~{left_min:.1f} min left")
+            if n_s == 0 and b >= 3 and have == 0:
+                raise RuntimeError(f"no valid switch sample in {b} batches: the source policies "
+                                   f"fall before the switch point (untrained policies?)")
+        loop_s = time.perf_counter() - t0
+        path = merge_parts(part_dir, out_dir / name / f"{target}.npz", meta)
+    finally:  # the session's time, an interrupted one's too
+        session_s = time.perf_counter() - t_start
+        if ran:
+            write_meta(wall0 + session_s)
+    return SweepRun(path, have - pts0, loop_s, steady_points, steady_s, session_s,
+                    meta["wall_s_total"])
+
+
+def merge_parts(part_dir: pathlib.Path, path: pathlib.Path, meta: dict) -> pathlib.Path:
+    parts = [dict(np.load(p)) for p in sorted(part_dir.glob("part_*.npz"))]
+    merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    merged["meta"] = np.array(json.dumps(meta, default=str))
+    np.savez_compressed(path, **merged)
+    return path
+
+
+def rate_or_none(points: int, seconds: float):
+    return round(points / seconds, 1) if points > 0 and seconds > 0 else None
+
+
+def data_stats(data: dict, path: pathlib.Path, wall_s_total: float) -> dict:
+    """A target's entry in the lookup's meta["sweeps"]; `wall_s` is the sweep's total wall time
+    over all its sessions (Table III's sweep cost)."""
+    return {"points": int(len(data["label"])), "wall_s": round(float(wall_s_total), 1),
+            "success_pct": round(100 * float(data["label"].mean()), 2), "data": str(path)}
+
+
+def stored_stats(data: dict, path: pathlib.Path, stored: dict) -> dict | None:
+    """The entry of a target not swept by this command: its entry in the existing lookup (the
+    speed of the session that made it) with points and total wall time from its data and part
+    dir (newer, if the data was extended elsewhere); None where no wall time is known."""
+    meta_path = path.with_suffix("") / "meta.json"
+    part_meta = json.loads(meta_path.read_text()) if meta_path.exists() else data["meta"]
+    wall = part_meta.get("wall_s_total", stored.get("wall_s"))
+    return None if wall is None else {**stored, **data_stats(data, path, wall)}
