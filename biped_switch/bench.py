@@ -9,6 +9,7 @@ import argparse
 import json
 import sys
 import jax
+from biped_switch import cli
 from biped_switch.simulation import env as env_lib
 from biped_switch.simulation import terrain
 from biped_switch.evaluation import bench as bench_lib
@@ -25,7 +26,7 @@ def main(argv=None) -> int:
     p.add_argument("--json", action="store_true", help="print only the JSON object")
     p.add_argument("--estimator", action="store_true", help="time switch-estimator training instead")
     p.add_argument("--train", action="store_true", help="time PPO training (collection + updates)")
-    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES)
+    cli.add_backend(p)
     p.add_argument("--encoding", default="pool", choices=("pool", "mlp"),
                    help="--train: the policy's heightmap input (pool: 150 values; mlp: 2,400)")
     p.add_argument("--iterations", type=int, default=5, help="--train: timed PPO iterations")
@@ -57,4 +58,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

@@ -5,8 +5,12 @@ Each command is also `python -m biped_switch.<command>`; both run the same `main
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import sys
+
+from biped_switch import paths
+from biped_switch.names import BACKEND_CHOICES, INITS
 
 COMMANDS = {
     "train": "train a behaviour policy (PPO, guided curriculum)",
@@ -21,10 +25,48 @@ COMMANDS = {
 }
 
 
+# ----------------------------------------------------------------------- shared flags
+# Each flag that several commands take is defined once here, so it means one thing everywhere.
+def add_runs(p: argparse.ArgumentParser, help: str = "") -> None:
+    """--runs: the parent folder of training run folders (<runs>/<policy>_<init>/); a run not
+    there is taken from its committed copy under models/."""
+    p.add_argument("--runs", default=paths.RUNS,
+                   help=help or "parent folder of training runs (then the committed models/)")
+
+
+def add_backend(p: argparse.ArgumentParser) -> None:
+    """--backend: the physics backend; auto is the C engine on a CPU and MJX on an accelerator."""
+    p.add_argument("--backend", default="auto", choices=BACKEND_CHOICES,
+                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+
+
+def add_init(p: argparse.ArgumentParser, default: str = "stand") -> None:
+    """--init: which policy suite (its episodes start standing, or from random joints)."""
+    p.add_argument("--init", default=default, choices=INITS,
+                   help="policy suite: stand (standing start) or random (random joints)")
+
+
 def usage() -> str:
     width = max(map(len, COMMANDS))
     rows = "\n".join(f"  {c:<{width}}  {h}" for c, h in COMMANDS.items())
     return f"usage: biped-switch <command> [args]\n\ncommands:\n{rows}\n"
+
+
+def run(main) -> None:
+    """Exits with `main()`'s status; a damaged run folder (a file that is not JSON, a truncated
+    checkpoint) ends in one line naming the file instead of a traceback."""
+    from biped_switch.learning.runs import RunFileError
+    try:
+        code = main()
+    except RunFileError as e:
+        print(f"error: {e}", file=sys.stderr)
+        code = 2
+    except Exception as e:
+        if type(e).__name__ != "CheckpointError":  # learning.checkpoints, without importing Orbax here
+            raise
+        print(f"error: {e}", file=sys.stderr)
+        code = 2
+    sys.exit(code)
 
 
 def main(argv=None) -> int:
@@ -39,5 +81,10 @@ def main(argv=None) -> int:
     return importlib.import_module(f"biped_switch.{cmd}").main(rest)
 
 
+def console() -> None:
+    """The `biped-switch` console script."""
+    run(main)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run(main)

@@ -27,19 +27,16 @@ import time
 import jax
 import numpy as np
 
+from biped_switch import cli
 from biped_switch.simulation import render
 
-render._gl_default()  # the GL backend is fixed when mujoco is first imported: before env's
-
-from biped_switch.simulation import env as env_lib  # noqa: E402
-from biped_switch.evaluation import trace as fig5  # noqa: E402
-from biped_switch.reports import fig5 as fig5_report  # noqa: E402
-from biped_switch.learning import policies as pol  # noqa: E402
-from biped_switch.learning import runs as runs_lib  # noqa: E402
-from biped_switch.evaluation import multi as table2  # noqa: E402
+from biped_switch.evaluation import trace as fig5
+from biped_switch.reports import fig5 as fig5_report
+from biped_switch.learning import policies as pol
+from biped_switch.learning import runs as runs_lib
+from biped_switch.evaluation import multi as table2
 from biped_switch.reports import table2 as table2_report
-from biped_switch.config import MULTI_TRACK_SEED, default_env_config  # noqa: E402
-
+from biped_switch.config import MULTI_TRACK_SEED, default_env_config
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.demo", description=__doc__.split("\n")[0])
@@ -50,12 +47,11 @@ def main(argv=None) -> int:
     p.add_argument("--horizon-s", type=float, default=None,
                    help="episode time limit [s] (default: the longest track at the 0.8 m/s target speed, x1.4)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--runs", default="runs", help="trained policies (then models/policies/)")
+    cli.add_runs(p)
     p.add_argument("--estimators", default="models/estimators")
     p.add_argument("--lookup", default="experiments/results/lookup")
     p.add_argument("--dqn", default=None, help="DQN run directory (default: RUNS/dqn_stand, then models/baselines/)")
-    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
-                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+    cli.add_backend(p)
     p.add_argument("--no-video", action="store_true")
     p.add_argument("--out", default="experiments/results/demo")
     a = p.parse_args(argv)
@@ -117,7 +113,6 @@ def main(argv=None) -> int:
                       "backend": summary["backend"], "video": summary.get("video")}))
     return 0
 
-
 def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
     """Time limit [s] that lets a robot walking at the target speed finish the longest of the
     demo's tracks with `margin` to spare (after the 0.5 s standing pause)."""
@@ -125,7 +120,6 @@ def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
                    for i in range(trials))
     ecfg = default_env_config()
     return float(np.ceil(ecfg.pause_s + margin * finish_m / ecfg.target_speed_mps))
-
 
 def _in_training(runs) -> list[str]:
     """'<policy>: <why>' for each found stand-init policy whose run is not finished, the
@@ -144,11 +138,9 @@ def _in_training(runs) -> list[str]:
         out.append(f"dqn selector: {'; '.join(notes)}")
     return out
 
-
 def _untrained(runs) -> list:
     """Stand-init behaviour policies with no checkpoint under `runs`/ or models/policies/."""
     return [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, "stand", pathlib.Path(runs)) is None]
-
 
 def _video(rec: dict, setup, path: pathlib.Path) -> str | None:
     """GIF of the traced trial, or None (with the reason printed) when rendering is unavailable."""
@@ -164,6 +156,7 @@ def _video(rec: dict, setup, path: pathlib.Path) -> str | None:
     print(f"wrote {path} ({len(images)} frames)")
     return str(path)
 
-
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

@@ -10,6 +10,7 @@ import functools
 import pathlib
 import sys
 import jax
+from biped_switch import cli
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
@@ -24,19 +25,18 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.dqn", description=__doc__.split("\n")[0])
     p.add_argument("--preset", default=None, choices=("gpu", "cpu"),
                    help="default: cpu on a CPU host, else gpu")
-    p.add_argument("--init", default="stand", choices=env_lib.INITS)
+    cli.add_init(p)
     p.add_argument("--total-steps", type=int, default=None)
     p.add_argument("--chunk-steps", type=int, default=None)
     p.add_argument("--num-envs", type=int, default=None)
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--oracle-bonus", type=float, default=None)
-    p.add_argument("--runs", default="runs", help="where the behaviour policies are")
+    cli.add_runs(p, "where the behaviour policies are (then models/policies/)")
     p.add_argument("--out", default=None, help="run directory (default RUNS/dqn_<init>)")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
-    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
-                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+    cli.add_backend(p)
     p.add_argument("--commit", action="store_true",
                    help=f"copy the run's latest checkpoint, config, metrics and curves to "
                         f"{runs_lib.BASELINE_DIR}/<run>/ (then git-commit that folder) and exit")
@@ -63,4 +63,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

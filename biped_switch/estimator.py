@@ -10,6 +10,7 @@ import functools
 import json
 import pathlib
 import sys
+from biped_switch import cli
 from biped_switch.config import default_estimator_config
 from biped_switch.simulation.env import STATE_SIZE
 from biped_switch.switching import estimator as estimator_lib
@@ -18,7 +19,7 @@ from biped_switch.reports.estimators import plot_history
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.estimator", description=__doc__.split("\n")[0])
-    p.add_argument("--init", default="stand", choices=("stand", "random"))
+    cli.add_init(p)
     p.add_argument("--targets", nargs="+", default=list(estimator_lib.TARGETS), choices=estimator_lib.TARGETS)
     p.add_argument("--data", default="runs/sweeps", help="sweep data: DATA/<init>/<target>.npz")
     p.add_argument("--out", default="models/estimators", help="checkpoints go to OUT/<init>_<target>/")
@@ -81,4 +82,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

@@ -51,6 +51,7 @@ import time
 import jax
 import numpy as np
 
+from biped_switch import cli
 from biped_switch.simulation import env as env_lib
 from biped_switch.config import EVAL_TRACK_SEED, MULTI_TRACK_SEED
 from biped_switch.reports.fig5 import plot_trial
@@ -85,8 +86,8 @@ def main(argv=None) -> int:
     s.add_argument("--track-seed", type=int, default=EVAL_TRACK_SEED,
                    help=f"trial i runs on the track of seed TRACK_SEED + i (default "
                         f"{EVAL_TRACK_SEED:,}: tracks training never saw)")
-    s.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
-    s.add_argument("--runs", default="runs")
+    cli.add_backend(s)
+    cli.add_runs(s)
     s.add_argument("--out", default="experiments/results/table1")
     s.add_argument("--fresh", action="store_true",
                    help="replace OUT/table1.json (by default this run's rows join its rows of the "
@@ -99,7 +100,7 @@ def main(argv=None) -> int:
     m.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
     m.add_argument("--n-artifacts", type=int, default=7, help="artifacts per track (paper: 7)")
     m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--runs", default="runs")
+    cli.add_runs(m)
     m.add_argument("--estimators", default="models/estimators")
     m.add_argument("--lookup", default="experiments/results/lookup")
     m.add_argument("--dqn", default=None,
@@ -109,15 +110,15 @@ def main(argv=None) -> int:
     m.add_argument("--guide-scale", type=float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
     m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 for each estimator method run: fig5_trial<i>[_context] (-1: none)")
-    m.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
+    cli.add_backend(m)
     m.add_argument("--out", default="experiments/results/table2")
     m.add_argument("--fresh", action="store_true",
                    help="replace OUT/table2.json (by default this run's rows join its rows of the "
                         "other methods, when made with the same trials, batch, seed and horizon)")
     r = sub.add_parser("retrain-cost", help="Table III: hours to add a new terrain, from logs")
-    r.add_argument("--runs", default="runs")
+    cli.add_runs(r)
     r.add_argument("--results", default="experiments/results")
-    r.add_argument("--init", default="stand", choices=env_lib.INITS)
+    cli.add_init(r)
     r.add_argument("--out", default="experiments/results/table3")
     f = sub.add_parser("failures", help="Table II's falls by artifact and the artifact before it")
     f.add_argument("--out", default="experiments/results/table2",
@@ -136,7 +137,7 @@ def main(argv=None) -> int:
         w.add_argument(flag, default=default)
     w.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
     w.add_argument("--n-artifacts", type=int, default=7, help="artifacts per track (paper: 7)")
-    w.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES, help=env_lib.BACKEND_HELP)
+    cli.add_backend(w)
     a = p.parse_args(argv)
     if a.cmd == "switches":
         return _main_switches(a, p)
@@ -396,4 +397,6 @@ def _main_multi(a, p) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

@@ -9,17 +9,19 @@ import argparse
 import pathlib
 import sys
 import jax
+from biped_switch import cli
+from biped_switch.names import POLICY_NAMES, TERRAIN_KINDS
 from biped_switch.config import EVAL_TRACK_SEED
 from biped_switch.simulation import render as render_lib
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.render", description=__doc__.split("\n")[0])
-    p.add_argument("--policy", default=None, help="walk, jumps, gaps or stairs (trained)")
-    p.add_argument("--init", default="stand")
+    p.add_argument("--policy", default=None, choices=POLICY_NAMES, help="a trained policy")
+    cli.add_init(p)
     p.add_argument("--scripted", action="store_true", help="scripted standing controller, no policy")
-    p.add_argument("--kind", default=None, help="terrain kind (default: the policy's)")
-    p.add_argument("--runs", default="runs")
+    p.add_argument("--kind", default=None, choices=TERRAIN_KINDS, help="terrain kind (default: the policy's)")
+    cli.add_runs(p)
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--seed", type=int, default=0,
                    help=f"rng seed; the track's seed is {EVAL_TRACK_SEED:,} + this unless --track-seed")
@@ -30,9 +32,7 @@ def main(argv=None) -> int:
     p.add_argument("--trial", type=int, default=None,
                    help="the trial of --table1's row for --policy/--init (0-based; track seed = "
                         "the row's track_seed + this)")
-    # the choices are spelled out: importing env.BACKENDS here would import mujoco before _gl_default
-    p.add_argument("--backend", default="auto", choices=("auto", "mujoco", "mjx"),
-                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+    cli.add_backend(p)
     p.add_argument("--out", default=None)
     p.add_argument("--size", default="480x320", help="frame WIDTHxHEIGHT in pixels")
     p.add_argument("--every", type=int, default=2, help="draw every n-th control step (50 Hz)")
@@ -65,7 +65,6 @@ def main(argv=None) -> int:
         a.track_seed = row["track_seed"] + a.trial
         if a.backend == "auto":
             a.backend = row.get("backend", "auto")
-    render_lib._gl_default()  # before anything imports mujoco: then env, runs and policies may be imported
     from biped_switch.simulation import env as env_lib
     from biped_switch.learning import runs as runs_lib
     from biped_switch.learning.policies import load_policy
@@ -103,4 +102,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

@@ -11,6 +11,7 @@ import pathlib
 import sys
 import jax
 import numpy as np
+from biped_switch import cli
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.simulation import terrain
@@ -23,14 +24,14 @@ from biped_switch.switching import sweep as sweep_lib
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.sweep", description=__doc__.split("\n")[0])
-    p.add_argument("--init", default="stand", choices=env_lib.INITS)
+    cli.add_init(p)
     p.add_argument("--targets", nargs="+", default=list(terrain.ARTIFACT_KINDS),
                    choices=terrain.ARTIFACT_KINDS)
     p.add_argument("--points", type=int, default=None, help="data points per target (default 100,000)")
     p.add_argument("--batch", type=int, default=None, help="episodes per jitted batch")
     p.add_argument("--tracks", type=int, default=512, help="single-artifact tracks in the bank")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--runs", default="runs", help="where the trained policies are")
+    cli.add_runs(p, "where the trained policies are (then models/policies/)")
     p.add_argument("--out", default="runs/sweeps", help="sweep data (large; not committed)")
     p.add_argument("--results", default="experiments/results/lookup")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
@@ -38,8 +39,7 @@ def main(argv=None) -> int:
     p.add_argument("--guide-scale", type=float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
     p.add_argument("--difficulty", type=float, default=None, help="terrain difficulty (default 1)")
-    p.add_argument("--backend", default="auto", choices=env_lib.BACKEND_CHOICES,
-                   help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+    cli.add_backend(p)
     p.add_argument("--context", action="store_true",
                    help="switch after the source policy has crossed its own artifact, as on mixed "
                         "tracks (two-artifact tracks; data and lookup named <init>_context)")
@@ -117,4 +117,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

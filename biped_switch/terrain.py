@@ -9,13 +9,14 @@ import argparse
 import json
 import sys
 from typing import Sequence
+from biped_switch import cli
 from biped_switch.names import TERRAIN_KINDS as KINDS
 from biped_switch.simulation import terrain as terrain_lib
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.terrain", description=__doc__.split("\n")[0])
-    p.add_argument("--kind", default="mixed", help=f"one of {KINDS}")
+    p.add_argument("--kind", default="mixed", choices=KINDS, help="track kind")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--difficulty", type=float, default=1.0)
     p.add_argument("--json", action="store_true", help="print the track as JSON")
@@ -40,4 +41,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

@@ -11,6 +11,7 @@ import json
 import pathlib
 import sys
 import jax
+from biped_switch import cli
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_train_config
@@ -22,7 +23,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.train", description=__doc__.split("\n")[0])
     p.add_argument("--policy", default="walk", choices=trainer.TRAIN_KINDS,
                    help="a behaviour policy, or mixed: the end-to-end baseline")
-    p.add_argument("--init", default="stand", choices=env_lib.INITS)
+    cli.add_init(p)
     p.add_argument("--preset", default=None, choices=("gpu", "cpu"),
                    help="batch sizes; default: cpu on a CPU, gpu on an accelerator")
     p.add_argument("--backend", default=None, choices=env_lib.BACKEND_CHOICES,
@@ -125,4 +126,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from biped_switch.cli import run
+
+    run(main)

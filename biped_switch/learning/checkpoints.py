@@ -6,10 +6,39 @@ from __future__ import annotations
 import json
 import pathlib
 import shutil
+import warnings
 
 import orbax.checkpoint as ocp
 
-from biped_switch.learning.runs import PROGRESS, read_progress
+from biped_switch.learning.runs import PROGRESS, checkpoints, read_progress
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be restored: the message names its folder and what is wrong."""
+
+
+def write_tree(path: pathlib.Path, tree, save_args=None) -> pathlib.Path:
+    """An Orbax PyTree checkpoint of `tree` at `path` (replaced if there)."""
+    path = pathlib.Path(path).resolve()
+    ocp.PyTreeCheckpointer().save(path, tree, force=True, save_args=save_args)
+    return path
+
+
+def read_tree(path: pathlib.Path, item=None):
+    """The tree of the Orbax checkpoint at `path` (in `item`'s structure when given). A missing,
+    truncated or otherwise damaged checkpoint raises CheckpointError naming the folder, instead of
+    Orbax's and TensorStore's long tracebacks."""
+    path = pathlib.Path(path).resolve()
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: no checkpoint folder there")
+    try:
+        with warnings.catch_warnings():  # restoring on the host it was saved for: no sharding to give
+            warnings.filterwarnings("ignore", message="Sharding info not provided")
+            return ocp.PyTreeCheckpointer().restore(path, item=item)
+    except Exception as e:  # Orbax wraps TensorStore's errors in several exception types
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise CheckpointError(f"{path}: damaged or truncated checkpoint, cannot restore it "
+                              f"({type(e).__name__}: {first[:200]})") from None
 
 
 def save_tree(run_dir: pathlib.Path, step: int, tree, progress: dict,
@@ -18,7 +47,7 @@ def save_tree(run_dir: pathlib.Path, step: int, tree, progress: dict,
     layout `latest_checkpoint` finds; PPO and DQN runs alike); with `keep`, older checkpoints
     beyond the last `keep` are removed."""
     path = pathlib.Path(run_dir) / "checkpoints" / f"{step:012d}"
-    ocp.PyTreeCheckpointer().save(path.resolve(), tree, force=True)
+    write_tree(path, tree)
     (path / PROGRESS).write_text(json.dumps(progress, indent=2))
     if keep is not None:
         for old in sorted(path.parent.glob("[0-9]" * 12))[:-keep]:
@@ -37,13 +66,27 @@ def load_checkpoint(path: pathlib.Path, template=None):
     """(state tree, progress dict) of a checkpoint (PPO: {params, opt_state, norm}). With
     `template` (a ppo.TrainState), the PPO tree is restored into its structure."""
     path = pathlib.Path(path)
-    ckptr = ocp.PyTreeCheckpointer()
+    item = None
     if template is not None:
         item = {"params": template.params, "opt_state": template.opt_state,
                 "norm": template.norm._asdict()}
-        tree = ckptr.restore(path.resolve(), item=item)
-    else:
-        tree = ckptr.restore(path.resolve())
-    return tree, read_progress(path)
+    return read_tree(path, item), read_progress(path)
 
 
+def load_newest_intact(run_dir: pathlib.Path, load, print_fn=print, set_aside: bool = False):
+    """(load(ckpt), ckpt) of the run's newest checkpoint that restores; a damaged one is skipped
+    with a line saying so and, with `set_aside`, renamed to <step>.damaged so that the run's next
+    checkpoints are not ranked below it. (None, None) when the run has no checkpoint; raises
+    CheckpointError when none restores."""
+    last = None
+    for ckpt in reversed(checkpoints(run_dir)):
+        try:
+            return load(ckpt), ckpt
+        except CheckpointError as e:
+            last = e
+            if set_aside:
+                ckpt.rename(ckpt.with_name(ckpt.name + ".damaged"))
+            print_fn(f"skipping a damaged checkpoint{' (set aside as *.damaged)' if set_aside else ''}: {e}")
+    if last is not None:
+        raise CheckpointError(f"{run_dir}: no checkpoint restores (the last tried: {last})")
+    return None, None

@@ -40,17 +40,40 @@ except ImportError:  # pragma: no cover
 PROGRESS = "progress.json"
 
 
+class RunFileError(ValueError):
+    """A run folder's file that cannot be read: the message names the file and what is wrong."""
+
+
+def read_json(path: pathlib.Path) -> dict:
+    """A run folder's JSON file; a damaged one raises RunFileError naming it (not a bare
+    JSONDecodeError from deep inside a resume)."""
+    path = pathlib.Path(path)
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise RunFileError(f"{path} is not valid JSON (line {e.lineno}, column {e.colno}: {e.msg}); "
+                           f"restore it from git (`git checkout -- {path}`) or remove the run "
+                           f"folder") from None
+    except UnicodeDecodeError as e:
+        raise RunFileError(f"{path} is not a text file ({e.reason})") from None
+
+
 # ----------------------------------------------------------------------- checkpoints
+def checkpoints(run_dir: pathlib.Path) -> list[pathlib.Path]:
+    """The run's finished checkpoints (those with a progress.json), oldest first."""
+    return sorted(p for p in (pathlib.Path(run_dir) / "checkpoints").glob("[0-9]" * 12)
+                  if (p / PROGRESS).exists())
+
+
 def latest_checkpoint(run_dir: pathlib.Path) -> pathlib.Path | None:
     """The run's newest finished checkpoint (one with a progress.json), or None."""
-    ckpts = sorted(p for p in (pathlib.Path(run_dir) / "checkpoints").glob("[0-9]" * 12)
-                   if (p / PROGRESS).exists())
+    ckpts = checkpoints(run_dir)
     return ckpts[-1] if ckpts else None
 
 
 def read_progress(ckpt: pathlib.Path) -> dict:
     """The progress record saved beside a checkpoint."""
-    return json.loads((pathlib.Path(ckpt) / PROGRESS).read_text())
+    return read_json(pathlib.Path(ckpt) / PROGRESS)
 
 
 # ----------------------------------------------------------------------- a run's config
@@ -60,14 +83,14 @@ def read_config(run_dir: pathlib.Path, committed: bool = False) -> dict:
     for d in (pathlib.Path(run_dir),) + ((COMMITTED_DIR / pathlib.Path(run_dir).name,)
                                           if committed else ()):
         if (d / "config.json").is_file():
-            return json.loads((d / "config.json").read_text())
+            return read_json(d / "config.json")
     return {}
 
 
 def run_config(run_dir: pathlib.Path) -> config_dict.ConfigDict:
     """The train config a PPO run was made with (its config.json over today's defaults: a key
     the run predates keeps its default, one no longer known is dropped)."""
-    saved = json.loads((pathlib.Path(run_dir) / "config.json").read_text())
+    saved = read_json(pathlib.Path(run_dir) / "config.json")
     cfg = default_train_config()
     for section in ("env", "network", "ppo", "eval", "curriculum"):
         for k, v in saved.get(section, {}).items():

@@ -114,15 +114,19 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     if writer:
         print_fn = runs_lib.train_log(run_dir, print_fn)
     logger = runs_lib.Logger(run_dir)
-    ckpt = runs_lib.latest_checkpoint(run_dir)
     env = env_fn(cfg)
     trainer = ppo.make_train(cfg, env)
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
     step, wall_s, compile_s, done = 0, 0.0, None, False
     high, high_step, end, held = 0.0, 0, None, None  # the push stage's plateau (curriculum.py)
     cs = curr_lib.CurriculumState(**cfg.start)
+    newest = runs_lib.latest_checkpoint(run_dir)
+    restored, ckpt = ckpt_lib.load_newest_intact(run_dir, lambda c: restore(c, ts), print_fn,
+                                                 set_aside=writer)
     if ckpt is not None:
-        ts, prog = restore(ckpt, ts)
+        if ckpt != newest:
+            print_fn(f"resuming from the newest intact checkpoint, {ckpt}")
+        ts, prog = restored
         if on_restore is not None:
             on_restore(ts)
         step, wall_s = prog["step"], prog["wall_s"]

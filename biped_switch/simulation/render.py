@@ -18,8 +18,6 @@ after `_gl_default()` (the demo imports this module first for the same reason).
 
 from __future__ import annotations
 
-import ctypes.util
-import os
 import pathlib
 
 import jax
@@ -27,19 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_switch.simulation import terrain
-
-
-def _gl_default() -> None:
-    """EGL on a GPU host, else OSMesa where libOSMesa is installed; without either MUJOCO_GL is
-    left unset (importing mujoco with MUJOCO_GL=osmesa but no libOSMesa fails, so a run that draws
-    nothing, e.g. `demo --no-video`, would fail too; drawing then fails, and says why)."""
-    if "MUJOCO_GL" not in os.environ:
-        if os.path.exists("/dev/nvidia0"):
-            os.environ["MUJOCO_GL"] = "egl"
-        elif ctypes.util.find_library("OSMesa"):
-            os.environ["MUJOCO_GL"] = "osmesa"
-    if os.environ.get("MUJOCO_GL") == "osmesa":
-        os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+from biped_switch.simulation import _gl_default  # noqa: F401  (set when the package is imported)
 
 
 def record(env, act, seconds: float, seed: int = 0, track_id: int = 0, reset_key=None,

@@ -40,10 +40,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import orbax.checkpoint as ocp
 from flax import linen
 from flax.training import orbax_utils
 
+from biped_switch.learning import checkpoints as ckpt_lib
+from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_env_config, default_estimator_config
 from biped_switch.simulation.env import STATE_SIZE
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
@@ -332,8 +333,7 @@ def save_estimator(path, params: dict, meta: dict) -> pathlib.Path:
     path = pathlib.Path(path).resolve()
     params = jax.tree.map(np.asarray, jax.device_get(params))
     path.parent.mkdir(parents=True, exist_ok=True)
-    ocp.PyTreeCheckpointer().save(path, params, force=True,
-                                  save_args=orbax_utils.save_args_from_target(params))
+    ckpt_lib.write_tree(path, params, save_args=orbax_utils.save_args_from_target(params))
     (path / "meta.json").write_text(json.dumps(meta, indent=2, default=_jsonable))
     return path
 
@@ -344,8 +344,8 @@ def load_estimator(path) -> tuple[dict, dict]:
     if not (path / "meta.json").exists():
         raise FileNotFoundError(f"no estimator at {path} (expected an Orbax checkpoint with meta.json); "
                                 f"train it with `python -m biped_switch.estimator`")
-    params = ocp.PyTreeCheckpointer().restore(path)
-    return jax.tree.map(np.asarray, params), json.loads((path / "meta.json").read_text())
+    params = ckpt_lib.read_tree(path)
+    return jax.tree.map(np.asarray, params), runs_lib.read_json(path / "meta.json")
 
 
 def sweep_name(init: str, context: bool = False) -> str:
