@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: reproduce install demo test test-all test-deps bench bench-train bench-estimator bench-1art train train-all render-deps wheels clean train-estimators train-dqn
+.PHONY: reproduce install demo docs notebooks test test-all test-deps bench bench-train bench-estimator bench-1art train train-all render-deps wheels clean train-estimators train-dqn
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -19,10 +19,23 @@ demo: $(STAMP)
 	@$(MAKE) -s render-deps || echo "demo: could not install OSMesa (needs apt as root): no video"
 	$(PY) -m biped_switch.demo
 
+# docs/results.md from the committed result files (experiments/results/**): run it after a command
+# rewrites one; tests/test_results_doc.py fails while the page is stale.
+docs: $(STAMP)
+	$(PY) -m biped_switch.reports.results
+
+# The notebooks executed on the committed results and saved with their outputs (tables, figures).
+notebooks: $(STAMP)
+	$(PY) scripts/run_notebooks.py
+
 # Two workers (pytest-xdist), one test file each at a time so module fixtures compile once per
 # worker: 8 min instead of 9 on a 2-core machine, where compiling MJX dominates.
 # Both install the offscreen renderer first (render-deps): tests/test_render.py draws frames and
-# fails without one. BIPED_SKIP_RENDER=1 skips the install and that test (a machine without root).
+# fails without one. BIPED_SWITCH_SKIP_RENDER=1 skips the install and that test (a machine without
+# root). The old name, BIPED_SKIP_RENDER, still works for now (deprecated: every variable of the
+# project is BIPED_SWITCH_*).
+BIPED_SWITCH_SKIP_RENDER ?= $(BIPED_SKIP_RENDER)
+export BIPED_SWITCH_SKIP_RENDER
 test: $(STAMP) test-deps
 	$(PY) -m pytest -q -n 2 --dist loadfile
 
@@ -30,8 +43,10 @@ test-all: $(STAMP) test-deps  ## includes tests marked slow
 	$(PY) -m pytest -q -n 2 --dist loadfile -m ''
 
 test-deps:
-	@if [ "$$BIPED_SKIP_RENDER" = 1 ]; then \
-	  echo "BIPED_SKIP_RENDER=1: no renderer installed, tests/test_render.py skips its drawing test"; \
+	@if [ -n "$$BIPED_SKIP_RENDER" ]; then \
+	  echo "BIPED_SKIP_RENDER is deprecated: set BIPED_SWITCH_SKIP_RENDER=1 instead" >&2; fi
+	@if [ "$$BIPED_SWITCH_SKIP_RENDER" = 1 ]; then \
+	  echo "BIPED_SWITCH_SKIP_RENDER=1: no renderer installed, tests/test_render.py skips its drawing test"; \
 	else $(MAKE) -s render-deps; fi
 
 bench: $(STAMP)
@@ -55,22 +70,14 @@ TRAIN_ARGS ?=
 train: $(STAMP)
 	$(PY) -m biped_switch.train --policy $(POLICY) --init $(INIT) $(TRAIN_ARGS)
 
-# The whole suite, resuming whatever is there. A new stand-init artifact policy, and the end-to-end
-# `mixed` policy, start from the stand walk policy (WARM=walk_stand; WARM= trains them from
-# scratch), so the composed suite and the end-to-end baseline share one prior. The random-init
-# walk policy trains from scratch and seeds the random-init artifact policies (RWARM=walk_random;
-# RWARM= trains them from scratch): the no-overlap ablation never inherits the stand policies.
-# `mixed` anneals its last guides in quarter notches (curriculum.py: halves were a cliff for it).
-WARM ?= walk_stand
-RWARM ?= walk_random
+# The whole suite from scratch, each committed run by its recipe (models/policies/<run>/recipe.json:
+# its flags, every mid-run change with its step and reason, its warm start; learning/recipe.py),
+# warm-start sources first, into runs/replay/<run>/ (a rerun resumes; `evaluate --runs runs/replay`
+# reads the result). RECIPES picks runs, e.g. RECIPES=models/policies/walk_stand. The DQN's recipes
+# replay the same way: `python -m biped_switch.train --recipe models/baselines/dqn_stand`.
+RECIPES ?= models/policies/*/
 train-all: $(STAMP)
-	$(PY) -m biped_switch.train --policy walk --init stand $(TRAIN_ARGS) || exit 1
-	for p in jumps gaps stairs; do \
-	  $(PY) -m biped_switch.train --policy $$p --init stand $(if $(WARM),--warm-start $(WARM)) $(TRAIN_ARGS) || exit 1; done
-	$(PY) -m biped_switch.train --policy walk --init random $(TRAIN_ARGS) || exit 1
-	for p in jumps gaps stairs; do \
-	  $(PY) -m biped_switch.train --policy $$p --init random $(if $(RWARM),--warm-start $(RWARM)) $(TRAIN_ARGS) || exit 1; done
-	$(PY) -m biped_switch.train --policy mixed --init stand --guide-notch 0.25 $(if $(WARM),--warm-start $(WARM)) $(TRAIN_ARGS)
+	$(PY) -m biped_switch.train --recipe $(RECIPES)
 
 # Offscreen rendering on a CPU host: OSMesa (Debian's libosmesa6), installed with apt (as root)
 # unless already there (then this returns at once). A GPU host uses EGL.
@@ -78,7 +85,7 @@ render-deps:
 	@if [ -e /dev/nvidia0 ] || ldconfig -p 2>/dev/null | grep -q libOSMesa; then :; else \
 	  export DEBIAN_FRONTEND=noninteractive; apt-get install -y -q libosmesa6 || \
 	  (apt-get update -q && apt-get install -y -q libosmesa6) || \
-	  { echo "render-deps: could not install libosmesa6 (needs apt as root); set BIPED_SKIP_RENDER=1 to test without rendering" >&2; exit 1; }; fi
+	  { echo "render-deps: could not install libosmesa6 (needs apt as root); set BIPED_SWITCH_SKIP_RENDER=1 to test without rendering" >&2; exit 1; }; fi
 
 # Wheels for the GPU host (Python 3.12, jax 0.11.2, flax/optax/orbax preinstalled, no network):
 # everything else it needs, into the git-ignored .whl/ (about 30 MB). See scripts/gpu_run.sh.

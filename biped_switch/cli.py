@@ -22,6 +22,7 @@ COMMANDS = {
     "render": "a GIF of a rollout",
     "bench": "speed benchmarks (JSON)",
     "terrain": "lay out and plot a track",
+    "detector": "train the learned terrain detector and measure it",
 }
 
 
@@ -38,6 +39,12 @@ def add_backend(p: argparse.ArgumentParser) -> None:
     """--backend: the physics backend; auto is the C engine on a CPU and MJX on an accelerator."""
     p.add_argument("--backend", default="auto", choices=BACKEND_CHOICES,
                    help="physics backend (auto: mujoco on a CPU, mjx on an accelerator)")
+
+
+def add_out(p: argparse.ArgumentParser, default, what: str) -> None:
+    """--out: the folder this command writes into (created if missing), in every command."""
+    p.add_argument("--out", default=default, help=f"the folder this command writes into: {what}"
+                   + (f" (default {default})" if default else ""))
 
 
 def add_init(p: argparse.ArgumentParser, default: str = "stand") -> None:

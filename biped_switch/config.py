@@ -17,6 +17,8 @@ TRAIN_TRACK_SEED = 0
 EVAL_TRACK_SEED = 10_000  # Table I (`evaluate single`) and the render CLI: never trained on
 SWEEP_TRACK_SEED = 20_000  # switch-point sweeps (single-artifact tracks)
 MULTI_TRACK_SEED = 30_000  # Table II (`evaluate multi`), Fig. 5 and the demo: mixed tracks
+DETECTOR_TRACK_SEED = 40_000  # the learned terrain detector's data: training and validation tracks
+TUNE_TRACK_SEED = 50_000  # mixed tracks for tuning switching thresholds (`evaluate multi --track-seed`)
 
 
 def default_terrain_config(n_artifacts: int = 7) -> config_dict.ConfigDict:
@@ -85,15 +87,25 @@ def default_env_config() -> config_dict.ConfigDict:
         target_speed_mps=0.8,
         fall_height_m=0.55,  # pelvis CoM lower than this above the terrain beneath: fallen
         fall_tilt_rad=1.0,  # |pitch| or |roll| above this: fallen
+        fall_z_m=-0.2,  # CoM below this height (flats are at z = 0): fallen into a gap or off the side
+        max_qvel=200.0,  # [m/s, rad/s] a speed beyond any motion of this robot: the simulation
+        # diverged, and the episode ends as a fall at its last finite state
+        hold_kp_per_gear=3.0,  # standing PD hold of the pause: stiffness [Nm/rad] per Nm of motor
+        # limit (knee: 750 Nm/rad)
+        hold_kd_ratio=0.05,  # ... damping [Nm s/rad] = hold_kd_ratio * stiffness (knee: 37.5)
+        reset_clearance_m=1e-3,  # a reset lifts or lowers the robot so its lowest sole is this
+        # far above the ground beneath it
         reward=config_dict.create(
             progress=3.0,  # x velocity, capped at the target speed
-            speed=1.0,  # exp(-(vx - target)^2 / 0.1) tracking bonus
+            speed=1.0,  # exp(-(vx - target)^2 / speed_width) tracking bonus
             alive=1.0,
             upright=0.5,  # cos(pitch) * cos(roll)
-            height=0.5,  # exp(-(h - h_stand)^2 / 0.01)
+            height=0.5,  # exp(-(h - h_stand)^2 / height_width)
             lateral=0.5,  # penalty on |y| drift and |yaw|
             torque=0.1,  # penalty on mean(a^2), a = torque as a fraction of its limit
             fall=10.0,  # one-off penalty on a fall
+            speed_width=0.1,  # [(m/s)^2] of the speed bonus (not a weight)
+            height_width=0.01,  # [m^2] of the height bonus (not a weight)
         ),
         shape=config_dict.create(
             grid_forward=60,  # heightmap rows, behind -> front
@@ -139,7 +151,7 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         max_fell=0.25,  # and at most this fraction of evaluation episodes fell (1 disables)
         regress_fell=0.6,  # one notch back when more than this fraction fell (1 disables) ...
         regress_patience=4,  # ... in this many evaluations in a row (1 = at once): a policy
-        # needs a few chunks at a new level (session 8, curriculum.py)
+        # needs a few chunks at a new level (curriculum.py)
         difficulty_step=0.1,
         guide_step=0.1,
         guide_min_step=0.025,  # the last notches shrink down to this (guide_notch 0.5: 0.1, 0.05,
@@ -153,8 +165,8 @@ def default_curriculum_config() -> config_dict.ConfigDict:
         push_duration_s=0.2,
         push_interval_s=2.0,  # mean time between pushes
         push_magnitude="uniform",  # each push's force: "uniform" U(0, 1) * push_scale * max_push_N,
-        # as legged_gym and Playground draw theirs; "max" always push_scale * max_push_N (sessions
-        # 1-8). Walk at 72M steps fell in 39% of 20 s episodes of max pushes at scale 1 (about 5%
+        # as legged_gym and Playground draw theirs; "max" always push_scale * max_push_N (the
+        # first runs' rule). Walk at 72M steps fell in 39% of 20 s episodes of max pushes at scale 1 (about 5%
         # per push, 9% at 0.5) and the push stages stalled for 10-38M steps a notch (README)
     )
 
@@ -190,7 +202,7 @@ def default_train_config(preset: str = "gpu") -> config_dict.ConfigDict:
         network=config_dict.create(policy_hidden=(256, 256), value_hidden=(256, 256),
                                    encoding="pool", pool=(2, 8), hm_hidden=(128, 64)),
         # the milestone's evaluation runs whole episodes, as the paper's "average episode reward":
-        # 20 s meets three to four artifacts; the 5 s one of sessions 1-6 met about one, and let
+        # 20 s meets three to four artifacts; a 5 s one met about one, and let
         # jumps and stairs anneal their guides while every training episode fell (curriculum.py)
         eval=config_dict.create(n_envs=256, horizon_steps=1000),
         curriculum=default_curriculum_config(),
@@ -235,7 +247,10 @@ def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
         tau=1.0,  # 1: hard copy; < 1: target <- tau online + (1 - tau) target
         epsilon=config_dict.create(start=1.0, end=0.05, decay_steps=5_000_000),  # env steps
         oracle_bonus=1.0,  # per step, for choosing the detected artifact's policy (walk if none)
-        norm_std_floor=1e-2,
+        norm_std_floor=1e-2,  # the Q-input normaliser (dqn.py): std floor, ...
+        norm_clip=10.0,  # ... the normalised input clipped to +-this, ...
+        norm_rows=16_384,  # ... its statistics from this many rows, strided over the warm-up
+        # transitions
         network=config_dict.create(hm_hidden=(128, 64), hidden=(256, 256)),  # as the policies
         eval_envs=64,  # greedy episodes after each chunk (fixed training tracks; 0: none)
     )
@@ -247,6 +262,14 @@ def default_dqn_config(preset: str = "gpu") -> config_dict.ConfigDict:
     elif preset != "gpu":
         raise ValueError(f"unknown preset {preset!r}; expected 'gpu' or 'cpu'")
     return cfg
+
+
+def default_single_config() -> config_dict.ConfigDict:
+    """Table I (`evaluate single`): each behaviour policy alone on tracks of its own kind."""
+    return config_dict.create(
+        horizon_speed_mps=0.6,  # the acceptance speed: the derived time limit lets a walker this
+        horizon_margin=1.2,  # fast finish the farthest track with this margin on the walking time
+    )
 
 
 def default_sweep_config() -> config_dict.ConfigDict:
@@ -285,4 +308,75 @@ def default_estimator_config() -> config_dict.ConfigDict:
         learning_rate=1e-3,
         val_frac=0.1,
         seed=0,
+        std_floor=1e-2,  # input columns with a smaller std (constant heightmap cells) scale by this
+        eval_chunk=4096,  # validation points per forward pass
     )
+
+
+def default_detector_config() -> config_dict.ConfigDict:
+    """The learned terrain detector (switching/detector.py): a small MLP on the heightmap's forward
+    profile that names the next artifact and its distance, in place of the oracle."""
+    return config_dict.create(
+        lateral_cols=(10, 30),  # heightmap columns averaged into the forward profile (+-0.25 m)
+        feet_rows=(22, 26),  # rows under the body (x ~ -0.04 .. +0.06 m): the profile's zero
+        rows_from=22,  # the network reads the profile's rows from here on (x >= -0.04 m: ahead)
+        hidden=(64, 64),
+        ahead_from_m=0.05,  # the distance: the first height change beyond this [m] ...
+        min_change_m=0.03,  # ... by more than this [m] from the ground under the feet ...
+        detect_range_m=0.9,  # ... and within the oracle's detection range [m]
+        epochs=400,
+        batch_size=1024,
+        learning_rate=1e-3,
+        weight_decay=1e-4,
+        patience=20,  # early stop: epochs without a better validation loss
+        # the switching rollout reports a change of the detector's kind once it has held this
+        # many control steps in a row (chosen on the validation tracks: `detector` prints each)
+        debounce_steps=3,
+        debounce_choices=(1, 2, 3, 4, 6),
+        seed=0,
+        # data: each stand policy on its own terrain kind, walk on flat tracks (single kinds, as
+        # the premise asks); validation on held-out seeds of the same and on mixed tracks
+        n_envs=64,  # episodes per kind
+        horizon_s=30.0,
+        every=2,  # keep every n-th control step
+        val_envs=32,
+    )
+
+
+def default_setup_config(target: str = "gaps") -> config_dict.ConfigDict:
+    """A setup policy's training run (switching/setup.py): the train config of a
+    behaviour policy (`default_train_config("cpu")`) with a `setup` section. The learner acts
+    between the source policy's exit (target detected) and a fixed hand-over distance before
+    the target artifact; source and target policies are the frozen `suite_init` suite."""
+    cfg = default_train_config("cpu")
+    cfg.policy = f"setup_{target}"
+    cfg.warm_start = "walk_stand"  # a sound gait to start from (its normaliser too)
+    cfg.total_timesteps = 200_000_000
+    cfg.chunk_timesteps = 250_000
+    cfg.n_tracks = 512  # two-artifact tracks [source, target]; one reset-pool start each
+    cfg.episode_length = 400  # control steps (8 s) from the pool start: setup + target phases
+    cfg.stop_when_done = False
+    # the curriculum never moves: guides 0, no pushes, full difficulty throughout
+    cfg.start.update(stage=2, difficulty=1.0, guide_scale=0.0, push_scale=0.0)
+    cfg.curriculum.update(reward_milestone=10.0, regress_fell=1.0, push_plateau_steps=0)
+    cfg.ppo.update(learning_rate=1e-4, discounting=0.995, init_action_std=0.3)
+    cfg.eval.update(n_envs=128, horizon_steps=400)
+    cfg.setup = config_dict.create(
+        target=target,
+        sources=("jumps", "stairs"),  # mixed in one run, alternating over the tracks
+        suite_init="stand",  # the frozen source and target policies
+        handover_m=0.45,  # hand over to the target policy this far before its artifact: between
+        # the context sweep's best bins (jumps -> gaps 0.405 m, stairs -> gaps 0.465 m)
+        source_segments=(4, 5),  # segments of the source artifact (full tracks: 4..9): its exit
+        target_segments=(2, 3),  # ... and of the target's (gaps: 1 or 2 holes); short tracks,
+        # since only the setup phase trains the learner
+        finish_after_m=0.5,  # success line this far past the target artifact's end
+        setup_reward_scale=1.0,  # the walking reward (env reward terms) on setup steps
+        success_bonus=200.0,  # once, when the target policy crosses (after the hand-over)
+        fall_penalty=200.0,  # once, on a fall in the setup or target phase (source falls: 0)
+        pool=True,  # episodes start from a pool of source-phase end states (one per track)
+        pool_horizon=900,  # control steps the source phase may take when the pool is built
+        train_track_seed=60_000,  # setup tracks: train seed + run seed + i, eval seed + i
+        eval_track_seed=70_000,
+    )
+    return cfg

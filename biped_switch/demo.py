@@ -8,7 +8,11 @@ random-init suite is trained, and the DQN and end-to-end baselines where they ar
 tracks (2 artifacts of different kinds, so that a good policy can finish within a time limit a
 2-core CPU can afford in under 10 minutes), prints Table II, draws the paper's Fig. 5 for one trial
 of the estimator method and renders that trial to a GIF (offscreen MuJoCo; skipped with a message
-when no OpenGL backend is available). Everything goes to experiments/results/demo/.
+when no OpenGL backend is available). Where a learned terrain detector is trained
+(models/detector/stand/), `lookup_context` runs once more with it in place of the oracle, and its
+success is printed beside the oracle's. Everything goes to runs/demo/ (git-ignored);
+`--refresh-example` rewrites the committed example output, experiments/results/demo/ (then
+`make docs`: docs/results.md copies its table).
 
 A missing stand-init policy is an error naming it and the command that trains it; nothing stands
 in for it. It reports honestly what it ran on: the provenance of every policy is printed and saved,
@@ -27,7 +31,7 @@ import time
 import jax
 import numpy as np
 
-from biped_switch import cli
+from biped_switch import cli, paths
 from biped_switch.simulation import render
 
 from biped_switch.evaluation import trace as fig5
@@ -37,6 +41,10 @@ from biped_switch.learning import runs as runs_lib
 from biped_switch.evaluation import multi as table2
 from biped_switch.reports import table2 as table2_report
 from biped_switch.config import MULTI_TRACK_SEED, default_env_config
+
+OUT = "runs/demo"  # git-ignored: a demo run leaves the tree clean
+EXAMPLE = "experiments/results/demo"  # the committed example output (--refresh-example)
+DETECTOR = paths.MODELS_DIR / "detector" / "stand"  # the learned terrain detector, where trained
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.demo", description=__doc__.split("\n")[0])
@@ -53,8 +61,13 @@ def main(argv=None) -> int:
     p.add_argument("--dqn", default=None, help="DQN run directory (default: RUNS/dqn_stand, then models/baselines/)")
     cli.add_backend(p)
     p.add_argument("--no-video", action="store_true")
-    p.add_argument("--out", default="experiments/results/demo")
+    cli.add_out(p, None, f"the demo's tables, figure and GIF (default {OUT}, git-ignored)")
+    p.add_argument("--refresh-example", action="store_true",
+                   help=f"write the committed example output, {EXAMPLE}/, instead (then `make docs`)")
     a = p.parse_args(argv)
+    if a.refresh_example and a.out:
+        p.error("--refresh-example writes to " + EXAMPLE + "; give it or --out, not both")
+    a.out = EXAMPLE if a.refresh_example else (a.out or OUT)
     if a.trials < 1 or a.n_artifacts < 1:
         p.error("--trials and --n-artifacts must be >= 1")
     if a.horizon_s is None:
@@ -90,12 +103,13 @@ def main(argv=None) -> int:
               f"of {a.n_artifacts}-artifact tracks, {a.horizon_s:.0f} s limit.\n\n" + md)
     print(md)
     (out / "table2_demo.md").write_text(md + "\n")
+    detector = _with_detector(a, rows)
     summary = {"methods": methods, "skipped": skipped, "trials": a.trials, "horizon_s": a.horizon_s,
                "n_artifacts": a.n_artifacts,
                "guide_scale": 0.0, "in_training": in_training,
                "policies": list(setups["stand"].suite.sources) if "stand" in setups else None,
                "rows": rows, "device": str(jax.devices()[0]),
-               "backend": sorted({r["backend"] for r in rows})}
+               "backend": sorted({r["backend"] for r in rows}), "detector": detector}
     setup = setups.get("stand")
     if setup is not None and setup.est_apply is not None:
         rec = fig5.trace_trial(setup, "estimator", 0, a.seed)
@@ -112,6 +126,31 @@ def main(argv=None) -> int:
     print(json.dumps({"demo_wall_s": summary["wall_s"], "device": summary["device"],
                       "backend": summary["backend"], "video": summary.get("video")}))
     return 0
+
+def _with_detector(a, rows) -> dict | None:
+    """`lookup_context` with the learned terrain detector in place of the oracle, on the same
+    tracks, its success printed beside the oracle's; None (and why, printed) without one."""
+    oracle = next((r for r in rows if r["method"] == "lookup_context"), None)
+    if not (DETECTOR / "meta.json").is_file() or oracle is None:
+        why = (f"no learned detector at {paths.rel(DETECTOR)} (`python -m biped_switch.detector` "
+               f"trains it)" if oracle is not None else "no lookup_context row")
+        print(f"learned terrain detector: skipped, {why}")
+        return None
+    (row,), _ = table2.evaluate_multi(
+        ["lookup_context"], a.trials, a.trials, a.horizon_s, a.seed, a.runs, None, a.estimators,
+        a.lookup, print_fn=lambda *s: print(*s, flush=True), guide_scale=0.0,
+        n_artifacts=a.n_artifacts, backend=a.backend, track_seed=MULTI_TRACK_SEED,
+        detector_dir=DETECTOR)
+
+    def pct(r):
+        return f"{r['success_pct']:.1f}% ({r['success_ci'][0]:.1f}-{r['success_ci'][1]:.1f})"
+
+    print(f"learned terrain detector ({paths.rel(DETECTOR)}): lookup_context success {pct(row)} "
+          f"against {pct(oracle)} with the oracle, the same {a.trials} tracks")
+    return {"detector": paths.rel(DETECTOR), "method": "lookup_context",
+            "success_pct": row["success_pct"], "success_ci": row["success_ci"],
+            "oracle_success_pct": oracle["success_pct"], "oracle_success_ci": oracle["success_ci"]}
+
 
 def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
     """Time limit [s] that lets a robot walking at the target speed finish the longest of the
@@ -147,8 +186,9 @@ def _video(rec: dict, setup, path: pathlib.Path) -> str | None:
     live = int(np.sum(rec["ended"] < 0.5))
     boxes = np.asarray(setup.env.track_arrays(0, 1.0)[0])
     try:
-        images = render.frames(rec["qpos"][: max(live, 2)], boxes, width=320, height=240, every=3)
-        render.write(images, path, fps=1.0 / (3 * setup.env.dt))
+        # every 6th control step, 8.3 fps in real time: the committed example stays under 1.5 MB
+        images = render.frames(rec["qpos"][: max(live, 2)], boxes, width=320, height=240, every=6)
+        render.write(images, path, fps=1.0 / (6 * setup.env.dt))
     except Exception as e:  # no OpenGL backend (e.g. no libOSMesa): say so, keep the rest
         print(f"video skipped: offscreen rendering failed ({type(e).__name__}: {e}); "
               f"`make render-deps` installs OSMesa on a CPU host")

@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--oracle-bonus", type=float, default=None)
     cli.add_runs(p, "where the behaviour policies are (then models/policies/)")
-    p.add_argument("--out", default=None, help="run directory (default RUNS/dqn_<init>)")
+    cli.add_out(p, None, "the DQN's run folder (default RUNS/dqn_<init>)")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
     cli.add_backend(p)

@@ -22,7 +22,7 @@ def main(argv=None) -> int:
     cli.add_init(p)
     p.add_argument("--targets", nargs="+", default=list(estimator_lib.TARGETS), choices=estimator_lib.TARGETS)
     p.add_argument("--data", default="runs/sweeps", help="sweep data: DATA/<init>/<target>.npz")
-    p.add_argument("--out", default="models/estimators", help="checkpoints go to OUT/<init>_<target>/")
+    cli.add_out(p, "models/estimators", "one checkpoint folder per estimator, <init>_<target>/")
     p.add_argument("--results", default="experiments/results/estimators",
                    help="metrics JSON, history CSV and curves PNG: RESULTS/<init>_<target>.*")
     p.add_argument("--epochs", type=int, default=None)

@@ -53,7 +53,7 @@ import numpy as np
 
 from biped_switch import cli
 from biped_switch.simulation import env as env_lib
-from biped_switch.config import EVAL_TRACK_SEED, MULTI_TRACK_SEED
+from biped_switch.config import EVAL_TRACK_SEED, MULTI_TRACK_SEED, TUNE_TRACK_SEED
 from biped_switch.reports.fig5 import plot_trial
 from biped_switch.evaluation.trace import trace_trial
 from biped_switch.paper import TABLE2_FAIL_ORDER
@@ -63,7 +63,10 @@ from biped_switch.evaluation.single import (HORIZON_MARGIN, HORIZON_SPEED_MPS, e
 from biped_switch.reports.table1 import table1_markdown
 from biped_switch.reports.fig4b import plot_switch_distances
 from biped_switch.evaluation.multi import (BASELINES, MULTI_METHODS, available_methods, evaluate_multi, merge_rows, mixed_track, trial_track)
-from biped_switch.reports.table2 import (claims_markdown, failures_by_context, failures_markdown, paper_claims, switch_outcomes, switch_summary, switches_markdown, table2_markdown)
+from biped_switch.reports.table2 import (claims_markdown, failures_by_context, failures_markdown,
+                                         paper_claims, policy_on_falls, policy_on_falls_markdown,
+                                         switch_outcomes, switch_summary, switches_markdown,
+                                         table2_markdown)
 from biped_switch.reports.table3 import retrain_cost, table3_markdown
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
 
@@ -88,7 +91,7 @@ def main(argv=None) -> int:
                         f"{EVAL_TRACK_SEED:,}: tracks training never saw)")
     cli.add_backend(s)
     cli.add_runs(s)
-    s.add_argument("--out", default="experiments/results/table1")
+    cli.add_out(s, "experiments/results/table1", "table1.md, .csv and .json")
     s.add_argument("--fresh", action="store_true",
                    help="replace OUT/table1.json (by default this run's rows join its rows of the "
                         "other policies and inits, when made with the same trials, batch, seed, "
@@ -100,6 +103,15 @@ def main(argv=None) -> int:
     m.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
     m.add_argument("--n-artifacts", type=int, default=7, help="artifacts per track (paper: 7)")
     m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--track-seed", type=int, default=MULTI_TRACK_SEED,
+                   help=f"trial i runs on the mixed track of seed TRACK_SEED + i (default "
+                        f"{MULTI_TRACK_SEED:,}: Table II's, for reporting only; tune on others, "
+                        f"e.g. {TUNE_TRACK_SEED:,})")
+    m.add_argument("--detector", default="oracle", choices=("oracle", "learned"),
+                   help="what names the next artifact: the paper's oracle, or the learned "
+                        "detector on the heightmap (python -m biped_switch.detector)")
+    m.add_argument("--detector-dir", default="models/detector/stand",
+                   help="the learned detector's folder (with --detector learned)")
     cli.add_runs(m)
     m.add_argument("--estimators", default="models/estimators")
     m.add_argument("--lookup", default="experiments/results/lookup")
@@ -111,7 +123,7 @@ def main(argv=None) -> int:
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
     m.add_argument("--fig5-trial", type=int, default=0, help="trial drawn as Fig. 5 for each estimator method run: fig5_trial<i>[_context] (-1: none)")
     cli.add_backend(m)
-    m.add_argument("--out", default="experiments/results/table2")
+    cli.add_out(m, "experiments/results/table2", "table2.md, .csv, .json, claims.md, the per-trial outcomes and Fig. 5")
     m.add_argument("--fresh", action="store_true",
                    help="replace OUT/table2.json (by default this run's rows join its rows of the "
                         "other methods, when made with the same trials, batch, seed and horizon)")
@@ -119,11 +131,10 @@ def main(argv=None) -> int:
     cli.add_runs(r)
     r.add_argument("--results", default="experiments/results")
     cli.add_init(r)
-    r.add_argument("--out", default="experiments/results/table3")
+    cli.add_out(r, "experiments/results/table3", "table3.md and .json")
     f = sub.add_parser("failures", help="Table II's falls by artifact and the artifact before it")
-    f.add_argument("--out", default="experiments/results/table2",
-                   help="the table2.json and table2_trials.npz of `evaluate multi`; writes "
-                        "failures_by_context.md and .json there")
+    cli.add_out(f, "experiments/results/table2", "failures_by_context.md and .json, beside "
+                "the table2.json and table2_trials.npz of `evaluate multi` it reads")
     w = sub.add_parser("switches", help="where each rule switched, and what it cost "
                                         "(switch_distances.md/.json/.png)")
     w.add_argument("--methods", nargs="+", default=["com_over_feet", "lookup", "lookup_context"],
@@ -131,10 +142,11 @@ def main(argv=None) -> int:
     w.add_argument("--trials", type=int, default=500, help="Table II's first trials (tracks)")
     for flag, default in (("--batch", 250), ("--seed", 0)):
         w.add_argument(flag, type=int, default=default)
-    for flag, default in (("--runs", "runs"), ("--estimators", "models/estimators"),
-                          ("--lookup", "experiments/results/lookup"),
-                          ("--out", "experiments/results/table2")):
+    cli.add_runs(w)
+    for flag, default in (("--estimators", "models/estimators"),
+                          ("--lookup", "experiments/results/lookup")):
         w.add_argument(flag, default=default)
+    cli.add_out(w, "experiments/results/table2", "switch_distances.md, .json and .png")
     w.add_argument("--horizon-s", type=float, default=60.0, help="episode time limit [s]")
     w.add_argument("--n-artifacts", type=int, default=7, help="artifacts per track (paper: 7)")
     cli.add_backend(w)
@@ -267,17 +279,24 @@ def _main_failures(out: pathlib.Path) -> int:
               file=sys.stderr)
         return 2
     settings = json.loads((out / "table2.json").read_text())["settings"]
-    tracks = [mixed_track(MULTI_TRACK_SEED + i, settings["n_artifacts"])
-              for i in range(settings["trials"])]
-    by_method = {}
+    seed0 = settings.get("track_seed", MULTI_TRACK_SEED)
+    tracks = [mixed_track(seed0 + i, settings["n_artifacts"]) for i in range(settings["trials"])]
+    by_method, on_falls = {}, {}
     with np.load(trials_path) as z:
         for m in dict.fromkeys(k.split("/")[0] for k in z.files):
             by_method[m] = failures_by_context(tracks, z[f"{m}/progress_frac"], z[f"{m}/fell"],
                                                z[f"{m}/fail_kind"])
+            if f"{m}/active_at_start" in z.files:
+                on_falls[m] = policy_on_falls(tracks, z[f"{m}/progress_frac"], z[f"{m}/fell"],
+                                              z[f"{m}/fail_kind"], z[f"{m}/active_at_start"])
     md = failures_markdown(by_method)
+    if on_falls:
+        md += "\n\n" + policy_on_falls_markdown(on_falls)
     print(md)
     (out / "failures_by_context.md").write_text(md + "\n")
     (out / "failures_by_context.json").write_text(json.dumps(by_method, indent=1))
+    if on_falls:
+        (out / "policy_on_falls.json").write_text(json.dumps(on_falls, indent=1))
     return 0
 
 
@@ -326,6 +345,8 @@ def _main_multi(a, p) -> int:
     json_path = pathlib.Path(a.out) / "table2.json"
     old = _read_table(json_path, a.fresh)
     settings = {**vars(a), "batch": batch}
+    if a.detector == "oracle":
+        settings.pop("detector_dir")
     try:  # before an hour of rollouts, not after
         merge_rows(old, [], settings)
     except ValueError as e:
@@ -344,7 +365,8 @@ def _main_multi(a, p) -> int:
                                   a.stand_in, a.estimators, a.lookup,
                                   print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale,
                                   dqn_dir=a.dqn, n_artifacts=a.n_artifacts, backend=a.backend,
-                                  per_trial=per_trial)
+                                  per_trial=per_trial, track_seed=a.track_seed,
+                                  detector_dir=a.detector_dir if a.detector == "learned" else None)
     session_s = time.perf_counter() - t0
     lock = _lock(pathlib.Path(a.out))  # another `evaluate multi` may have added rows meanwhile
     old = _read_table(json_path, a.fresh)
@@ -371,7 +393,7 @@ def _main_multi(a, p) -> int:
         {"settings": settings, "rows": rows, "skipped": skipped, "wall_s": wall,
          "wall_s_session": session_s,
          "device": str(jax.devices()[0]), "backend": sorted({r["backend"] for r in rows}),
-         "track_seed": MULTI_TRACK_SEED}, indent=2, default=str))
+         "track_seed": a.track_seed}, indent=2, default=str))
     save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
     claims_md = claims_markdown(paper_claims(rows))  # the paper's claims on the whole table
     (out / "claims.md").write_text(claims_md + "\n")
@@ -388,7 +410,7 @@ def _main_multi(a, p) -> int:
         path = out / f"fig5_trial{a.fig5_trial}{suffix}.png"
         plot_trial(rec, track, path, f"{method} switching, trial {a.fig5_trial}")
         np.savez_compressed(path.with_suffix(".npz"), **rec,
-                            track_seed=MULTI_TRACK_SEED + a.fig5_trial % a.trials,
+                            track_seed=a.track_seed + a.fig5_trial % a.trials,
                             n_artifacts=a.n_artifacts)
         print(f"wrote {path}")
     print(json.dumps({"table2_wall_s": round(wall, 1), "session_s": round(session_s, 1),

@@ -33,7 +33,8 @@ def main(argv=None) -> int:
                    help="the trial of --table1's row for --policy/--init (0-based; track seed = "
                         "the row's track_seed + this)")
     cli.add_backend(p)
-    p.add_argument("--out", default=None)
+    cli.add_out(p, "experiments/results/videos", "<policy>_<kind>.gif (a path ending in .gif or "
+                ".mp4 names the file itself)")
     p.add_argument("--size", default="480x320", help="frame WIDTHxHEIGHT in pixels")
     p.add_argument("--every", type=int, default=2, help="draw every n-th control step (50 Hz)")
     p.add_argument("--colors", type=int, default=256, help="GIF palette size (2-256)")
@@ -90,7 +91,9 @@ def main(argv=None) -> int:
     qpos, boxes, metrics = render_lib.record(env, act, a.seconds, a.seed, reset_key=reset_key,
                                   batch=1 if row is None else int(doc["settings"]["batch"]))
     fps = 1.0 / (a.every * env.dt)
-    out = pathlib.Path(a.out or f"experiments/results/videos/{a.policy or 'scripted'}_{kind}.gif")
+    out = pathlib.Path(a.out)
+    if out.suffix not in (".gif", ".mp4"):
+        out = out / f"{a.policy or 'scripted'}_{kind}.gif"
     images = render_lib.frames(qpos, boxes, width, height, a.every)
     render_lib.write(images, out, fps, a.colors)
     if a.sheet:

@@ -32,7 +32,7 @@ def main(argv=None) -> int:
     p.add_argument("--tracks", type=int, default=512, help="single-artifact tracks in the bank")
     p.add_argument("--seed", type=int, default=0)
     cli.add_runs(p, "where the trained policies are (then models/policies/)")
-    p.add_argument("--out", default="runs/sweeps", help="sweep data (large; not committed)")
+    cli.add_out(p, "runs/sweeps", "the sweep data, one part per batch (large; not committed)")
     p.add_argument("--results", default="experiments/results/lookup")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")

@@ -17,12 +17,16 @@ from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_train_config
 from biped_switch.learning import trainer
 from biped_switch.reports import curves
+from biped_switch.switching import setup as setup_lib
+
+SETUP_POLICIES = tuple(f"setup_{k}" for k in ("jumps", "gaps", "stairs"))
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.train", description=__doc__.split("\n")[0])
-    p.add_argument("--policy", default="walk", choices=trainer.TRAIN_KINDS,
-                   help="a behaviour policy, or mixed: the end-to-end baseline")
+    p.add_argument("--policy", default="walk", choices=trainer.TRAIN_KINDS + SETUP_POLICIES,
+                   help="a behaviour policy, mixed: the end-to-end baseline, or setup_<target>: "
+                        "a setup policy (switching/setup.py; its recipe: config.default_setup_config)")
     cli.add_init(p)
     p.add_argument("--preset", default=None, choices=("gpu", "cpu"),
                    help="batch sizes; default: cpu on a CPU, gpu on an accelerator")
@@ -43,7 +47,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-action-std", type=float, default=None, metavar="STD",
                    help="cap each joint's exploration std at STD [fraction of the motor limit] "
                         "(default: a resumed run's own, else 0: no cap; mixed trains with 0.5 "
-                        "from session 22: README, Training)")
+                        "from 205.7M env steps: its recipe.json)")
     p.add_argument("--warm-start", default=None, metavar="CKPT_OR_RUN",
                    help="start a new run from the parameters of a checkpoint folder, a run "
                         "folder's latest checkpoint, or a run name (e.g. walk_stand: runs/, then "
@@ -54,7 +58,7 @@ def main(argv=None) -> int:
     p.add_argument("--keep-training", action="store_true",
                    help="train on to --total-steps after the curriculum finishes (default: stop)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="runs", help="runs go to OUT/<policy>_<init>")
+    cli.add_out(p, "runs", "one run folder, <policy>_<init>/ (or --name)")
     p.add_argument("--name", default=None, help="run folder name (default <policy>_<init>)")
     p.add_argument("--distributed", action="store_true", help="jax.distributed.initialize() first")
     p.add_argument("--plot", metavar="PNG", help="only plot the run's training curves to PNG")
@@ -65,7 +69,21 @@ def main(argv=None) -> int:
     p.add_argument("--commit", action="store_true",
                    help="only copy the run's latest checkpoint, config, metrics and curves to "
                         "models/policies/<run>/ (then git-commit that folder)")
+    p.add_argument("--recipe", nargs="+", metavar="RUN_DIR",
+                   help="only replay committed runs from scratch, each by its recipe.json "
+                        "(e.g. models/policies/gaps_stand; sources first), into OUT/replay/<run>/; "
+                        "the other flags are the recipe's (learning/recipe.py)")
     a = p.parse_args(argv)
+    if a.recipe:
+        from biped_switch import dqn
+        from biped_switch.learning import recipe as recipe_lib
+        out = pathlib.Path(a.out) / "replay"
+        for run_dir in recipe_lib.order(a.recipe):
+            if code := recipe_lib.replay(run_dir, out, {"train": main, "dqn": dqn.main},
+                                         functools.partial(print, flush=True)):
+                return code
+        print(f"replayed into {out}/; evaluate with --runs {out}")
+        return 0
     if a.plot:
         curves.ppo_curves(pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}"),
                              pathlib.Path(a.plot))
@@ -88,8 +106,11 @@ def main(argv=None) -> int:
     if a.distributed:
         jax.distributed.initialize()
     preset = a.preset or ("cpu" if jax.default_backend() == "cpu" else "gpu")
-    cfg = default_train_config(preset)
+    setup = setup_lib.is_setup_policy(a.policy)
+    cfg = setup_lib.setup_train_config(a.policy) if setup else default_train_config(preset)
     cfg.policy, cfg.init, cfg.seed = a.policy, a.init, a.seed
+    if setup:
+        cfg.setup.suite_init = a.init
     if a.backend:
         cfg.env.backend = a.backend
     if a.action:
@@ -121,7 +142,9 @@ def main(argv=None) -> int:
         cfg.chunk_timesteps = a.chunk_steps
     print(f"training {a.policy}/{a.init} on {jax.device_count()} {jax.devices()[0].platform} device(s), "
           f"{cfg.total_timesteps:,} steps in chunks of {cfg.chunk_timesteps:,} -> {run_dir}", flush=True)
-    trainer.train(cfg, run_dir, a.max_chunks, print_fn=functools.partial(print, flush=True))
+    print_fn = functools.partial(print, flush=True)
+    env_fn = functools.partial(setup_lib.setup_env, print_fn=print_fn) if setup else trainer.train_env
+    trainer.train(cfg, run_dir, a.max_chunks, print_fn=print_fn, env_fn=env_fn)
     return 0
 
 

@@ -7,7 +7,7 @@ training tracks at full difficulty with no guides (what the push-stage milestone
 Prints one JSON line per level: the fall fraction of the curriculum check's episodes
 (`train.milestone_rollout`, the run's eval config: 64 of 20 s), their reward per step, and the
 fall chance per push it implies (1 - (1 - fell)^(1 / pushes per episode)).
-Written to size the push stage (README, tuning log, session 9).
+Written to size the push stage (CHANGELOG.md: the push stage).
 """
 
 from __future__ import annotations

@@ -76,7 +76,10 @@ class FakeEnv:
     def __init__(self, end_step=8):
         import types
 
+        from biped_switch.simulation.observation import ObsLayout
+
         self.cfg = types.SimpleNamespace(shape=types.SimpleNamespace(grid_forward=60, grid_lateral=40))
+        self.obs_layout = ObsLayout((60, 40))
         self.end_step = end_step
 
     def reset(self, rng, **_):

@@ -13,7 +13,7 @@ from biped_switch.learning import ppo
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_env_config, default_train_config
-from biped_switch.simulation.env import STATE_SIZE
+from biped_switch.simulation.observation import layout
 
 TINY_NETWORK = {"policy_hidden": (8,), "value_hidden": (8,), "hm_hidden": (4,)}
 DONE = {"stage": 3, "stage_name": "pushes", "difficulty": 1.0, "guide_scale": 0.0, "push_scale": 1.0}
@@ -28,11 +28,11 @@ def fake_policy_run(runs: pathlib.Path, policy: str, init: str = "stand", env: d
     cfg.policy, cfg.init, cfg.seed = policy, init, seed
     cfg.env.update(**(env or {}))
     cfg.network.update(**{**TINY_NETWORK, **(network or {})})
-    shape = default_env_config().shape
-    n_obs = STATE_SIZE + shape.grid_forward * shape.grid_lateral + (2 if cfg.env.phase_obs else 0)
-    layout = types.SimpleNamespace(cfg=types.SimpleNamespace(shape=shape), observation_size=n_obs,
-                                   action_size=12)
-    state = ppo.make_train(cfg, layout).init(jax.random.PRNGKey(seed))
+    env_cfg = default_env_config()
+    env_cfg.phase_obs = cfg.env.phase_obs
+    lay = layout(env_cfg)
+    env = types.SimpleNamespace(obs_layout=lay, observation_size=lay.size, action_size=12)
+    state = ppo.make_train(cfg, env).init(jax.random.PRNGKey(seed))
     run_dir = pathlib.Path(runs) / f"{policy}_{init}"
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json_best_effort(indent=2))

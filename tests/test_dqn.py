@@ -18,7 +18,8 @@ from biped_switch.learning import dqn_train as dqn_train
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_dqn_config
-from biped_switch.simulation.env import STATE_SIZE
+from biped_switch.learning import normalizer
+from biped_switch.simulation.observation import STATE_SIZE, ObsLayout, layout
 from biped_switch.reports import curves
 
 GRID = (2, 2)  # the fake env's heightmap
@@ -38,6 +39,7 @@ class FakeEnv(Env):
     def __init__(self, end_step=5, n_tracks=5):
         self.cfg = types.SimpleNamespace(shape=types.SimpleNamespace(grid_forward=GRID[0],
                                                                      grid_lateral=GRID[1]))
+        self.obs_layout = ObsLayout(GRID)
         self.bank = types.SimpleNamespace(size=n_tracks)
         self.end_step = end_step
 
@@ -172,7 +174,7 @@ def test_input_norm_layout():
     x = np.random.default_rng(0).normal(size=(500, Q_IN)).astype(np.float32) * 3.0 + 1.0
     x[:, 0] = 2.0  # a constant state column: std floored
     x[:, P_OBS:] = np.eye(4, 3, -1)[np.arange(500) % 4]  # none, jumps, gaps, stairs
-    n = jax.jit(dqn.input_norm, static_argnums=(1, 2))(x, P_OBS, 0.01)
+    n = jax.jit(normalizer.frozen_stats, static_argnums=(1, 2))(x, 0.01, P_OBS - STATE_SIZE)
     np.testing.assert_allclose(n["mean"][1:STATE_SIZE], np.mean(np.asarray(x)[:, 1:STATE_SIZE], 0), rtol=1e-4)
     np.testing.assert_allclose(n["std"][0], 0.01)
     hm = np.asarray(x)[:, STATE_SIZE:P_OBS]
@@ -189,7 +191,7 @@ def test_input_norm_leaves_the_phase_clock_untouched():
     n_policy = P_OBS + 2
     x = np.random.default_rng(1).normal(size=(300, n_policy + 3)).astype(np.float32) * 2.0 + 0.5
     x[:, P_OBS:n_policy] = np.stack([np.sin(np.arange(300)), np.cos(np.arange(300))], axis=1) * 9
-    n = dqn.input_norm(jnp.asarray(x), n_policy, 0.01, P_OBS - STATE_SIZE)
+    n = normalizer.frozen_stats(jnp.asarray(x), 0.01, P_OBS - STATE_SIZE)
     hm = x[:, STATE_SIZE:P_OBS]
     np.testing.assert_allclose(n["mean"][STATE_SIZE:P_OBS], hm.mean(), rtol=1e-4)
     np.testing.assert_allclose(n["std"][STATE_SIZE:P_OBS], hm.std(), rtol=1e-4)
@@ -200,15 +202,22 @@ def test_input_norm_leaves_the_phase_clock_untouched():
 
 def test_sizes_follow_the_env_phase_clock():
     """The policies read env.policy_observation_size columns (with the phase clock); the Q-network
-    reads those and the one-hot, and its heightmap encoder exactly the 2400 heightmap values."""
+    reads those and the one-hot, and its heightmap encoder exactly the 2400 heightmap values. The
+    env's layout is its config's, and names every column range."""
     from biped_switch.simulation import env as env_lib
 
     for phase in (True, False):
         env = env_lib.make_env("mixed", n_tracks=1, phase_obs=phase, detector_one_hot=True)
         p = STATE_SIZE + 2400 + (2 if phase else 0)
-        assert dqn.policy_obs_size(env) == env.policy_observation_size == p
-        assert dqn.hm_size(env) == 2400
-        assert dqn.q_input_size(env) == p + 3 == env.observation_size
+        lay = layout(env)
+        assert lay == layout(env.cfg) == ObsLayout((60, 40), 2 if phase else 0, 3)
+        assert lay.policy_size == env.policy_observation_size == p
+        assert lay.hm_size == 2400 and lay.estimator == slice(0, 2451)
+        assert (lay.state, lay.heightmap) == (slice(0, 51), slice(51, 2451))
+        assert lay.phase == slice(2451, p) and lay.one_hot == slice(p, p + 3)
+        assert dqn.q_input_size(env) == p + 3 == env.observation_size == lay.size
+        parts = lay.split(np.arange(lay.size))
+        assert [len(x) for x in parts] == [51, 2400, lay.size - 2451]
 
 
 def test_sync_target():
@@ -505,7 +514,7 @@ def test_collection_and_update_on_the_real_env(env, fns, batch0, traces):
     batched step (compiled once per session, shared: the physics adds no compile here), with
     conftest's reset states of tracks 0..3 as the pool and zero-torque policies. conftest's env
     has no one-hot: the DQN appends its own from metrics["detected_kind"]."""
-    p = dqn.policy_obs_size(env)
+    p = layout(env).policy_size
     assert env.observation_size == p
     zero = pol.PolicySuite(lambda prm, obs: jnp.zeros((obs.shape[0], 12)) * prm, jnp.arange(4.0), ())
     fns["step"](batch0, jnp.zeros((4, 12), jnp.float32))  # the fixture's own argument types
@@ -542,7 +551,7 @@ def test_collection_and_update_on_the_real_env(env, fns, batch0, traces):
     np.testing.assert_array_equal(rows["obs"][:4, :STATE_SIZE], start[:, :STATE_SIZE])
     np.testing.assert_allclose(rows["obs"][:4, STATE_SIZE:p], start[:, STATE_SIZE:], atol=5e-4)
     # a few Double-DQN updates on these transitions, with the normaliser from them
-    params = {**params, "norm": dqn.input_norm(jnp.asarray(rows["obs"]), p, 1e-2)}
+    params = {**params, "norm": normalizer.frozen_stats(jnp.asarray(rows["obs"]), 1e-2, p - STATE_SIZE)}
     opt = dqn.make_optimizer(types.SimpleNamespace(max_grad_norm=10.0, learning_rate=1e-3))
     update = jax.jit(dqn.make_update(q_apply, opt, 0.99, 1.0))
     opt_state, losses, target = opt.init(params["net"]), [], params
@@ -559,7 +568,7 @@ def test_train_dqn_on_the_real_env_checkpoints_resumes_and_loads(env, batch0, tm
     appends its own) with its reset states as the pool, so a full test session compiles nothing
     here but the jitted collection + update (once: the resumed run reuses it). Zero-torque
     policies; 2 envs; episodes time out after 10 steps (0.2 s, in the standing pause)."""
-    p_obs = dqn.policy_obs_size(env)
+    p_obs = layout(env).policy_size
     assert env.observation_size == p_obs  # the one-hot comes from metrics["detected_kind"]
     zero = pol.PolicySuite(lambda prm, obs: jnp.zeros((obs.shape[0], 12)) * prm, jnp.arange(4.0),
                            ("zero",) * 4)

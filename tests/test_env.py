@@ -317,7 +317,7 @@ def test_fall_into_gap_blames_gaps(env, fns, batch0):
     st = states[k]
     assert st.metrics["fell"][i] == 1.0 and st.metrics["success"][i] == 0.0
     assert st.metrics["fail_kind"][i] == terrain.ARTIFACT_KINDS.index("gaps")
-    assert st.pipeline_state.xipos[i, env.biped.pelvis_body, 2] < env_lib.FALL_Z_M
+    assert st.pipeline_state.xipos[i, env.biped.pelvis_body, 2] < env.cfg.fall_z_m
     assert st.obs[i, 50] == pytest.approx(2.0)  # nothing beneath: height clipped to the depth
     assert done[:, 1:].max() == 0.0
 
@@ -392,9 +392,9 @@ def _reward_reference(env, st, action, paused, h_ref):
     a = 0.0 if paused else np.clip(action, -1, 1)  # ignored actions cost nothing in the pause
     ones = np.ones_like(vx)
     return {"progress": w.progress * np.minimum(vx, target),
-            "speed": w.speed * np.exp(-(vx - target) ** 2 / 0.1), "alive": w.alive * ones,
+            "speed": w.speed * np.exp(-(vx - target) ** 2 / w.speed_width), "alive": w.alive * ones,
             "upright": w.upright * np.cos(pitch) * np.cos(roll),
-            "height": w.height * np.exp(-(h - h_ref) ** 2 / 0.01),
+            "height": w.height * np.exp(-(h - h_ref) ** 2 / w.height_width),
             "lateral": -w.lateral * (np.abs(y) + np.abs(yaw)),
             "torque": -w.torque * np.mean(a ** 2) * ones, "fall": -w.fall * st.metrics["fell"]}
 

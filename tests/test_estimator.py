@@ -9,9 +9,12 @@ import numpy as np
 import pytest
 
 from biped_switch.simulation import env as env_lib
+from biped_switch.simulation.observation import layout
 from biped_switch.switching import estimator as est
 from biped_switch import estimator as estimator_cli
-from biped_switch.config import default_estimator_config
+from biped_switch.config import default_env_config, default_estimator_config
+
+IN_SIZE = layout(default_env_config()).estimator.stop  # state (51) + heightmap (2400)
 
 
 def synthetic_data(n_samples: int = 400, seed: int = 0, pos_quantile: float = 0.6) -> dict:
@@ -56,17 +59,19 @@ def random_params(seed: int, cfg=None) -> dict:
     cfg = small_cfg() if cfg is None else cfg
     rng = np.random.default_rng(seed)
     return est.init_params(cfg, jax.random.PRNGKey(seed),
-                           mean=rng.normal(size=est.IN_SIZE).astype(np.float32),
-                           std=rng.uniform(0.5, 2.0, est.IN_SIZE).astype(np.float32))
+                           mean=rng.normal(size=IN_SIZE).astype(np.float32),
+                           std=rng.uniform(0.5, 2.0, IN_SIZE).astype(np.float32))
 
 
 def random_obs(n: int, extra: int = 0, seed: int = 1) -> np.ndarray:
-    return np.random.default_rng(seed).normal(size=(n, est.IN_SIZE + extra)).astype(np.float32)
+    return np.random.default_rng(seed).normal(size=(n, IN_SIZE + extra)).astype(np.float32)
 
 
 def test_input_layout_matches_env():
     assert est.STATE_SIZE == env_lib.STATE_SIZE
-    assert est.HM_SIZE == 60 * 40 and est.IN_SIZE == 2451
+    assert IN_SIZE == 51 + 60 * 40 == 2451
+    # the default layout's sizes, for callers that assume it (resolved when asked for)
+    assert est.HM_SIZE == 60 * 40 and est.IN_SIZE == IN_SIZE
 
 
 # ------------------------------------------------------------------------------ balanced_split
@@ -152,13 +157,13 @@ def test_predict_ignores_trailing_columns_and_normalises():
     obs = random_obs(6, extra=3)
     p = jax.jit(est.predict)(params, obs)
     assert p.shape == (6,)
-    np.testing.assert_allclose(p, est.predict(params, obs[:, : est.IN_SIZE]), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(p, est.predict(params, obs[:, : IN_SIZE]), rtol=0, atol=1e-6)
     other = obs.copy()
-    other[:, est.IN_SIZE:] = 1e3
+    other[:, IN_SIZE:] = 1e3
     np.testing.assert_allclose(p, est.predict(params, other), rtol=0, atol=1e-6)
     # the stored statistics are applied: same as the bare net on (obs - mean) / std
     net = est.EstimatorNet(hm_hidden=(8,), hidden=(16,))
-    x = (obs[:, : est.IN_SIZE] - params["mean"]) / params["std"]
+    x = (obs[:, : IN_SIZE] - params["mean"]) / params["std"]
     np.testing.assert_allclose(p, net.apply(params["net"], x), rtol=1e-5, atol=1e-6)
     assert np.all((np.asarray(p) > 0) & (np.asarray(p) < 1))
     # any leading shape; a single observation gives a scalar
@@ -168,7 +173,7 @@ def test_predict_ignores_trailing_columns_and_normalises():
 
 def test_module_sizes_read_from_params():
     cfg = small_cfg(hm_hidden=(5, 4), hidden=(7, 6, 3))
-    net = est.module_from_params(est.init_params(cfg, jax.random.PRNGKey(0))["net"])
+    net = est.module_from_params(est.init_params(cfg, jax.random.PRNGKey(0), in_size=IN_SIZE)["net"])
     assert tuple(net.hm_hidden) == (5, 4) and tuple(net.hidden) == (7, 6, 3)
 
 
@@ -176,7 +181,7 @@ def test_vmap_over_stacked_params_equals_each():
     p1, p2 = random_params(1), random_params(2)
     obs = random_obs(5, extra=3)
     stacked = est.stack_params([p1, p2])
-    assert stacked["mean"].shape == (2, est.IN_SIZE)
+    assert stacked["mean"].shape == (2, IN_SIZE)
     both = jax.jit(jax.vmap(est.predict, in_axes=(0, None)))(stacked, obs)
     assert both.shape == (2, 5)
     e1, e2 = est.predict(p1, obs), est.predict(p2, obs)
@@ -185,6 +190,19 @@ def test_vmap_over_stacked_params_equals_each():
     np.testing.assert_allclose(both[1], e2, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="cannot stack"):
         est.stack_params([p1, random_params(3, small_cfg(hidden=(32,)))])
+
+
+def test_sizes_come_from_the_data_and_params_not_the_default_grid():
+    """An estimator of another heightmap grid (2 x 2) is trained on and reads its own columns:
+    nothing fixes the default 60 x 40 grid."""
+    data = synthetic_data(n_samples=200)
+    data["heightmap"] = data["heightmap"][:, :4]
+    params, _ = est.train_estimator(data, small_cfg(epochs=2), print_fn=lambda *_: None)
+    assert params["mean"].shape == (est.STATE_SIZE + 4,)
+    obs = random_obs(3)[:, :est.STATE_SIZE + 4 + 3]  # a phase clock or a one-hot after: ignored
+    p = est.predict(params, obs)
+    assert p.shape == (3,)
+    np.testing.assert_array_equal(p, est.predict(params, obs[:, :est.STATE_SIZE + 4]))
 
 
 # -------------------------------------------------------------------------------------- training
@@ -210,8 +228,8 @@ def test_training_learns_a_state_threshold():
     obs = np.concatenate([data["state"], data["heightmap"].astype(np.float32)], -1)
     acc = np.mean((np.asarray(est.predict(params, obs)) >= 0.5) == (data["label"] == 1))
     assert acc > 0.9
-    assert params["mean"].shape == params["std"].shape == (est.IN_SIZE,)
-    assert np.all(params["std"] >= est.STD_FLOOR)
+    assert params["mean"].shape == params["std"].shape == (IN_SIZE,)
+    assert np.all(params["std"] >= default_estimator_config().std_floor)
 
 
 # ---------------------------------------------------------------------------------- checkpoints
@@ -257,7 +275,7 @@ def test_cli_end_to_end(tmp_path, capsys):
         assert json.loads((out / f"stand_{t}" / "meta.json").read_text())["sweep_meta"]["synthetic"]
     stacked, metas = est.load_estimator_set("stand", model_dir=out, targets=("jumps", "gaps"))
     assert [m["target"] for m in metas] == ["jumps", "gaps"]
-    assert stacked["std"].shape == (2, est.IN_SIZE)
+    assert stacked["std"].shape == (2, IN_SIZE)
     obs = random_obs(4, extra=3)
     both = jax.vmap(est.predict, in_axes=(0, None))(stacked, obs)
     for i, t in enumerate(("jumps", "gaps")):

@@ -11,7 +11,8 @@ BOTTOM = ("config", "names", "paths", "paper", "stats")  # import nothing of the
 ORDER = {**{m: 0 for m in BOTTOM}, "simulation": 1, "learning": 2, "switching": 3, "evaluation": 4,
          "reports": 5}
 PURE = {"biped_switch.learning.runs"}  # plain-Python modules the reports layer may read
-COMMANDS = ("train", "sweep", "estimator", "dqn", "evaluate", "demo", "render", "bench", "terrain")
+COMMANDS = ("train", "sweep", "estimator", "dqn", "evaluate", "demo", "render", "bench", "terrain",
+            "detector")
 
 
 def _imports(path: pathlib.Path):

@@ -50,13 +50,13 @@ _SCRIPT = textwrap.dedent("""
 
 def _require_gl() -> None:
     """An OpenGL backend must be there (`make test` installs OSMesa with `make render-deps`; a GPU
-    host renders with EGL): without one this test fails, unless BIPED_SKIP_RENDER=1 asks to skip."""
+    host renders with EGL): without one this test fails, unless BIPED_SWITCH_SKIP_RENDER=1 asks to skip."""
     if ctypes.util.find_library("OSMesa") or os.path.exists("/dev/nvidia0"):
         return
-    if os.environ.get("BIPED_SKIP_RENDER") == "1":
-        pytest.skip("BIPED_SKIP_RENDER=1 and no OpenGL backend (libOSMesa or a GPU for EGL)")
+    if os.environ.get("BIPED_SWITCH_SKIP_RENDER") == "1":
+        pytest.skip("BIPED_SWITCH_SKIP_RENDER=1 and no OpenGL backend (libOSMesa or a GPU for EGL)")
     pytest.fail("no OpenGL backend: libOSMesa not found and no GPU for EGL. Install it with "
-                "`make render-deps` (apt, as root; `make test` does), or set BIPED_SKIP_RENDER=1 "
+                "`make render-deps` (apt, as root; `make test` does), or set BIPED_SWITCH_SKIP_RENDER=1 "
                 "to skip this test")
 
 

@@ -5,6 +5,7 @@ reference loop of the shared jitted env step."""
 from __future__ import annotations
 
 import json
+import types
 
 import jax
 import jax.numpy as jnp
@@ -15,6 +16,7 @@ from biped_switch.switching import estimator
 from biped_switch.learning import policies as pol
 from biped_switch.switching import sweep
 from biped_switch.switching import lookup
+from biped_switch.simulation.observation import ObsLayout
 from biped_switch import sweep as sweep_cli
 
 from conftest import B, TRACK_IDS, batch_reset
@@ -39,6 +41,22 @@ def test_window_matches_python_loop(t_switch, t_end):
         switched = switched or now
     got = np.asarray(sweep.window_fill(w))
     np.testing.assert_array_equal(got, _window_ref(obs_seq, t_switch, t_end))
+
+
+def test_window_follows_the_configured_offsets():
+    """A window of other step offsets (-1 .. +2) records those around the switch; offsets that are
+    not consecutive are refused."""
+    obs_seq = np.arange(21 * 3, dtype=np.float32).reshape(21, 3)
+    w = sweep.window_init(jnp.asarray(obs_seq[0]), (-1, 0, 1, 2))
+    switched = False
+    for t in range(21):
+        now = t == 5
+        w = sweep.window_update(w, jnp.asarray(obs_seq[t]), jnp.bool_(now), jnp.bool_(switched))
+        switched = switched or now
+    np.testing.assert_array_equal(sweep.window_fill(w), obs_seq[4:8])
+    assert sweep.N_WINDOW == len(sweep_cli.default_sweep_config().window) == 5
+    with pytest.raises(ValueError, match="consecutive"):
+        sweep.window_init(jnp.zeros(3), (-2, 0, 2))
 
 
 def _c(left, right):
@@ -276,7 +294,7 @@ def test_split_keeps_exactly_state_and_heightmap():
     and the detector one-hot that an env may append after the heightmap are left out."""
     s, hm = sweep.env_lib.STATE_SIZE, 60 * 40
     obs = np.arange(2 * 5 * (s + hm + 2 + 3), dtype=np.float32).reshape(2, 5, -1) % 1000
-    state, heightmap = sweep._split(obs)
+    state, heightmap = sweep._split(obs, ObsLayout((60, 40), 2, 3))
     assert state.shape == (2, 5, s) and heightmap.shape == (2, 5, hm)
     np.testing.assert_array_equal(state, obs[..., :s])
     np.testing.assert_array_equal(heightmap, obs[..., s:s + hm].astype(np.float16))
@@ -305,7 +323,7 @@ def fake_sweep(monkeypatch):
     def make_env(target, init, n_tracks, difficulty, **kw):
         clock.t += 1.0
         env_kw.append(kw)
-        return object()
+        return types.SimpleNamespace(obs_layout=ObsLayout((2, 2)))  # the windows' 51 + 4 columns
 
     def suite_env_overrides(init, runs, stand_in=None):
         return dict(overrides)

@@ -20,7 +20,7 @@ default (`pool`: 150 pooled values); `--backend mjx` the same trainer on MJX.
 
     python -m biped_switch.bench --estimator --points 100000 --epochs 3 --json
 
-Times switch-estimator training (issue 4: the paper spent about an hour per estimator) on random
+Times switch-estimator training (the paper spent about an hour per estimator) on random
 data of the sweep's shape: epoch 1 compiles, the later epochs give the training speed and the
 projected time of the configured 1,500 epochs.
 """

@@ -28,6 +28,7 @@ from biped_switch.switching import estimator as est_lib
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
 from biped_switch.switching import sweep
+from biped_switch.switching import detector as det_lib
 from biped_switch.switching import lookup
 from biped_switch.switching import rules as sw
 from biped_switch.simulation import terrain
@@ -118,12 +119,13 @@ def _run_batches(run, trials: int, batch: int, seed: int, print_fn=None, label: 
     return {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
 
 
-def multi_env(init: str, trials: int, n_artifacts: int = 7, **overrides):
-    """Table II's env (`env.make_env`): `mixed` tracks MULTI_TRACK_SEED + i (trial i),
-    `n_artifacts` per track; `overrides` (env config: the physics `backend`, the suite's action
-    mode and phase clock, ...) go to `env.make_env`."""
+def multi_env(init: str, trials: int, n_artifacts: int = 7, track_seed: int = MULTI_TRACK_SEED,
+              **overrides):
+    """Table II's env (`env.make_env`): `mixed` tracks track_seed + i (trial i; Table II's are
+    MULTI_TRACK_SEED + i, tuning uses others), `n_artifacts` per track; `overrides` (env config:
+    the physics `backend`, the suite's action mode and phase clock, ...) go to `env.make_env`."""
     return env_lib.make_env("mixed", init, n_artifacts=n_artifacts, n_tracks=trials,
-                            seed=MULTI_TRACK_SEED, **overrides)
+                            seed=int(track_seed), **overrides)
 
 
 def mixed_track(seed: int, n_artifacts: int = 7):
@@ -133,7 +135,16 @@ def mixed_track(seed: int, n_artifacts: int = 7):
 
 def trial_track(setup, trial: int):
     """The terrain.Track of a trial of `setup` (for plots)."""
-    return mixed_track(MULTI_TRACK_SEED + trial, setup.env.terrain_cfg.n_artifacts)
+    return mixed_track(setup.env.cfg.seed + trial, setup.env.terrain_cfg.n_artifacts)
+
+
+def load_detector(detector_dir, env):
+    """(det_apply, det_params, source) of the learned terrain detector for `env`, or (None, None,
+    "oracle") when `detector_dir` is None (the paper's oracle)."""
+    if detector_dir is None:
+        return None, None, "oracle"
+    params, meta = det_lib.load(detector_dir)
+    return det_lib.detect_fn(meta, env), params, f"detector: {pathlib.Path(detector_dir)}"
 
 
 class MultiSetup:
@@ -142,10 +153,12 @@ class MultiSetup:
     def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
                  est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
                  guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto",
-                 need_context: Sequence[str] = ()):
+                 need_context: Sequence[str] = (), track_seed: int = MULTI_TRACK_SEED,
+                 detector_dir=None):
         self.init = init
-        self.env = multi_env(init, trials, n_artifacts, backend=backend,
+        self.env = multi_env(init, trials, n_artifacts, track_seed, backend=backend,
                              **pol.suite_env_overrides(init, runs, stand_in=stand_in))
+        det_apply, self.det_params, self.detector = load_detector(detector_dir, self.env)
         self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in)
         self.est_apply, self.est_params, self.est_meta = None, None, None
         if need_estimators:
@@ -182,11 +195,13 @@ class MultiSetup:
 
         env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon
 
-        def one(suite_params, est_params, rules, rng, ids):
+        def one(suite_params, est_params, det_params, rules, rng, ids):
             return sw.multi_rollout(env, apply, suite_params, est_apply, est_params, rules, rng,
-                                    ids.shape[0], horizon, track_ids=ids, guide_scale=guide_scale)
+                                    ids.shape[0], horizon, track_ids=ids, guide_scale=guide_scale,
+                                    det_apply=det_apply, det_params=det_params)
 
-        self.run = over_devices(one, n_shared=3)
+        self.det_apply = det_apply
+        self.run = over_devices(one, n_shared=4)
         self.batch = batch
         self.guide_scale = guide_scale
 
@@ -200,8 +215,9 @@ class MultiSetup:
 
     def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
         rules, est_params = self.rules_for(method)
-        return _run_batches(lambda rng, ids: self.run(self.suite.params, est_params, rules,
-                                                      rng, ids), trials, self.batch, seed, print_fn,
+        return _run_batches(lambda rng, ids: self.run(self.suite.params, est_params,
+                                                      self.det_params, rules, rng, ids),
+                            trials, self.batch, seed, print_fn,
                             f"{self.init}/{method}")
 
 
@@ -214,7 +230,7 @@ class BaselineSetup:
 
     def __init__(self, method: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
                  dqn_dir=None, guide_scale: float = 0.0, n_artifacts: int = 7,
-                 backend: str = "auto"):
+                 backend: str = "auto", track_seed: int = MULTI_TRACK_SEED, detector_dir=None):
         if method not in BASELINES:
             raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
         self.method = method
@@ -223,7 +239,7 @@ class BaselineSetup:
             if run_dir is None:
                 raise FileNotFoundError(f"no stand-init DQN checkpoint under {dqn_dir or runs}/ or "
                                         f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
-            self.env = multi_env("stand", trials, n_artifacts, detector_one_hot=True,
+            self.env = multi_env("stand", trials, n_artifacts, track_seed, detector_one_hot=True,
                                  backend=backend,
                                  **pol.suite_env_overrides("stand", runs, stand_in=stand_in))
             self.suite = pol.load_suite("stand", self.env, runs, stand_in=stand_in)
@@ -238,7 +254,7 @@ class BaselineSetup:
                               f"(make train-dqn) for a Table II row", stacklevel=2)
                 self.sources += (f"MISMATCH: selector trained with {trained_with}",)
         else:
-            self.env = multi_env("stand", trials, n_artifacts, backend=backend,
+            self.env = multi_env("stand", trials, n_artifacts, track_seed, backend=backend,
                                  **pol.suite_env_overrides("stand", runs, names=("mixed",)))
             self.suite = pol.load_suite("stand", self.env, runs, names=("mixed",))
             self.q_params = jax.numpy.zeros(())
@@ -247,16 +263,25 @@ class BaselineSetup:
                 return jax.numpy.zeros(x.shape[:-1] + (1,))
             self.sources = self.suite.sources
         env, apply, horizon = self.env, self.suite.apply, int(round(horizon_s / self.env.dt))
+        # the end-to-end policy reads no detector (only its heightmap); the DQN reads the detected
+        # kind, the oracle's or the learned one's
+        det_apply, self.det_params, self.detector = load_detector(
+            detector_dir if method == "dqn" else None, env)
+        if method != "dqn" and detector_dir is not None:
+            self.detector = "none: the end-to-end policy reads no detector"
 
-        def one(suite_params, q_params, rng, ids):
+        def one(suite_params, q_params, det_params, rng, ids):
             return dqn_train.dqn_rollout(env, apply, suite_params, q_apply, q_params, rng,
-                                       ids.shape[0], horizon, track_ids=ids, guide_scale=guide_scale)
+                                         ids.shape[0], horizon, track_ids=ids,
+                                         guide_scale=guide_scale, det_apply=det_apply,
+                                         det_params=det_params)
 
-        self.run = over_devices(one, n_shared=2)
+        self.run = over_devices(one, n_shared=3)
         self.batch = batch
 
     def evaluate(self, trials: int, seed: int, print_fn=None) -> dict:
-        return _run_batches(lambda rng, ids: self.run(self.suite.params, self.q_params, rng, ids),
+        return _run_batches(lambda rng, ids: self.run(self.suite.params, self.q_params,
+                                                      self.det_params, rng, ids),
                             trials, self.batch, seed, print_fn, self.method)
 
 
@@ -264,18 +289,22 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                    stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
                    print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
                    n_artifacts: int = 7, backend: str = "auto",
-                   per_trial: dict | None = None) -> tuple[list, dict]:
+                   per_trial: dict | None = None, track_seed: int = MULTI_TRACK_SEED,
+                   detector_dir=None) -> tuple[list, dict]:
     """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
     and per baseline ("dqn", "end_to_end"), every env on the physics `backend` with its policies'
     env overrides. `wall_s` of a row includes its setup and compiles. `per_trial`, if given, gets
-    each method's per-trial outcomes (TRIAL_FIELDS), to find the trials behind a row's failures."""
+    each method's per-trial outcomes (TRIAL_FIELDS), to find the trials behind a row's failures.
+    Trial i runs on track `track_seed` + i; `detector_dir`: a learned terrain detector in place of
+    the oracle (switching.detector), for the switching methods and the DQN."""
     setups, rows = {}, []
     for method in methods:
         t0 = time.perf_counter()
         init = "random" if method == "estimator_no_overlap" else "stand"
         if method in BASELINES:
             setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
-                                           guide_scale, n_artifacts, backend)
+                                           guide_scale, n_artifacts, backend, track_seed,
+                                           detector_dir)
             merged = setups[method].evaluate(trials, seed, print_fn)
             sources = setups[method].sources
         else:
@@ -285,7 +314,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                 setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
                                           lookup_dir, need_est,
                                           "lookup" in methods and init == "stand", guide_scale,
-                                          n_artifacts, backend, need_context=need_ctx)
+                                          n_artifacts, backend, need_context=need_ctx,
+                                          track_seed=track_seed, detector_dir=detector_dir)
             merged = setups[init].evaluate(method, trials, seed, print_fn)
             sources = setups[init].suite.sources
         if per_trial is not None:
@@ -294,7 +324,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         env = setups[method if method in BASELINES else init].env
         row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
                    switches_per_trial=float(np.mean(merged["n_switches"])),
-                   policies=list(sources), backend=env.backend)
+                   policies=list(sources), backend=env.backend,
+                   detector=setups[method if method in BASELINES else init].detector)
         if method not in BASELINES:
             parts = setups[init].parts
             parts = parts.get(method, parts.get(switch_rule(method)))
@@ -308,13 +339,17 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
 
 # Per-trial outcomes `evaluate multi` keeps beside the table (table2_trials.npz): trial i ran on
 # track MULTI_TRACK_SEED + i; fail_kind is the ARTIFACT_KINDS code of the artifact fallen on (-1: none)
-TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches", "switch_ahead_m")
+TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches", "switch_ahead_m",
+                "active_at_start")
 
 
 # The settings that fix what a Table II row measured: rows made with equal values of these are
 # rows of one table (the batch too: a policy's matmuls round differently at another batch size, and
 # a trajectory is chaotic), so `evaluate multi` may add rows to a table across sessions.
-TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "n_artifacts", "stand_in", "guide_scale")
+TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "n_artifacts", "stand_in", "guide_scale",
+              "track_seed", "detector")
+# what a table made before these settings existed was made with
+TRIAL_DEFAULTS = {"track_seed": MULTI_TRACK_SEED, "detector": "oracle"}
 
 
 def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]:
@@ -322,5 +357,7 @@ def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]
     MULTI_METHODS order (`stats.join_rows`): the methods' inputs (sweeps, estimators, DQN,
     end-to-end policy) are ready at different times, and each row's `policies` keeps where it
     came from."""
+    if old:
+        old = {**old, "settings": {**TRIAL_DEFAULTS, **old.get("settings", {})}}
     return join_rows(old, rows, settings, TRIAL_KEYS, key=lambda r: r["method"],
                      order=MULTI_METHODS)

@@ -21,19 +21,24 @@ import numpy as np
 
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import runs as runs_lib
-from biped_switch.config import EVAL_TRACK_SEED
+from biped_switch.config import EVAL_TRACK_SEED, default_single_config
 from biped_switch.learning.policies import POLICY_NAMES, load_policy
 from biped_switch.simulation.rollout import episode_keys, rollout
 from biped_switch.stats import episode_table, join_rows, mean_ci
 
-HORIZON_SPEED_MPS = 0.6  # Table I's acceptance speed: the derived horizon lets a walker this
-HORIZON_MARGIN = 1.2  # fast finish the longest track with this margin on the walking time
+# the config's values under their former names (evaluate's help text reads them)
+HORIZON_SPEED_MPS = default_single_config().horizon_speed_mps
+HORIZON_MARGIN = default_single_config().horizon_margin
 
 
-def single_horizon_s(finish_m: float, pause_s: float, speed_mps: float = HORIZON_SPEED_MPS,
-                     margin: float = HORIZON_MARGIN) -> float:
+def single_horizon_s(finish_m: float, pause_s: float, speed_mps: float | None = None,
+                     margin: float | None = None) -> float:
     """Episode time limit [s] of Table I: the standing pause, then `margin` times the time to walk
-    to the farthest finish line `finish_m` [m] (the episode starts near x = 0) at `speed_mps`."""
+    to the farthest finish line `finish_m` [m] (the episode starts near x = 0) at `speed_mps`
+    (defaults: `default_single_config()`'s)."""
+    cfg = default_single_config()
+    speed_mps = cfg.horizon_speed_mps if speed_mps is None else speed_mps
+    margin = cfg.horizon_margin if margin is None else margin
     return float(np.ceil(pause_s + margin * finish_m / speed_mps))
 
 
@@ -71,8 +76,9 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
     pause_s = float(env.cfg.pause_s) if init == "stand" else 0.0
     if horizon_s is None:
         horizon_s = single_horizon_s(finish_m, pause_s)
-        horizon_from = (f"derived: {pause_s:g} s pause + {HORIZON_MARGIN:g} x farthest finish "
-                        f"{finish_m:.1f} m / {HORIZON_SPEED_MPS:g} m/s")
+        cfg = default_single_config()
+        horizon_from = (f"derived: {pause_s:g} s pause + {cfg.horizon_margin:g} x farthest finish "
+                        f"{finish_m:.1f} m / {cfg.horizon_speed_mps:g} m/s")
     else:
         horizon_from = "--horizon-s"
     run = jax.jit(functools.partial(rollout, env, act, n_envs=batch,

@@ -22,9 +22,9 @@ def trace_trial(setup, method: str, trial: int, seed: int) -> dict:
     rules, est_params = setup.rules_for(method)
     f = jax.jit(functools.partial(sw.trace_rollout, setup.env, setup.suite.apply,
                                   est_apply=setup.est_apply, horizon=setup.horizon,
-                                  guide_scale=setup.guide_scale))
+                                  guide_scale=setup.guide_scale, det_apply=setup.det_apply))
     rec = jax.device_get(f(suite_params=setup.suite.params,
-                           est_params=est_params,
+                           est_params=est_params, det_params=setup.det_params,
                            rules=rules, rng=jax.random.PRNGKey(seed + trial), track_id=trial))
     return {k: np.asarray(v) for k, v in rec.items()}
 

@@ -10,11 +10,11 @@ records the end of the last one as `curriculum_done` in progress.json (the state
 
 It also steps back one notch when most evaluation episodes fall (`regress_fell`), across stage
 boundaries if need be (pushes 0 -> guides 0.025, guides 1 -> terrain), as legged_gym's terrain
-curriculum moves a robot that fails down a level. Session 7 found why this is needed: with a 5 s
-evaluation that met about one artifact, jumps and stairs had annealed their guides to 0 while
-every 20 s training episode still fell at the first or second artifact. A step back waits for
-`regress_patience` such evaluations in a row (`strikes` counts them): in session 7 the first check
-after an advance often fell badly and the next one recovered at the same level (gaps stepped
+curriculum moves a robot that fails down a level. It is needed because with a 5 s evaluation
+that met about one artifact, jumps and stairs had annealed their guides to 0 while every 20 s
+training episode still fell at the first or second artifact. A step back waits for
+`regress_patience` such evaluations in a row (`strikes` counts them): the first check after an
+advance often fell badly and the next one recovered at the same level (gaps stepped
 0.2 -> 0.3 four times after one check each, jumps 0.025 -> 0.05 twice, stairs pushes 0.6 -> 0.5).
 With a patience of 2, gaps at guides 0.1 fell 92-100% of four checks over two visits while its
 training episodes went further each chunk (mean distance 1.7 -> 4.0 m, then 3.1 -> 5.3 m): it was
@@ -23,16 +23,16 @@ adapting when the step back came, so the patience is 4.
 The guides' last notches are finer: once `guide_notch` of the scale is less than guide_step, each
 notch takes that fraction of it, down to `guide_min_step` (0.5 halves: 0.2 -> 0.1 -> 0.05 ->
 0.025 -> 0). Jumps at guides 0.1 fell in 12-27% of its evaluations and at 0 in 100%, twice, so
-the step to 0 was a cliff (session 7). The end-to-end `mixed` policy met a cliff one notch
-earlier: over 13 cuts 0.2 -> 0.1 in session 19 every check at 0.1 fell 66-100% and each visit
+the step to 0 was a cliff. The end-to-end `mixed` policy met a cliff one notch
+earlier: over 13 cuts 0.2 -> 0.1 every check at 0.1 fell 66-100% and each visit
 ended in a step back, while its checkpoint at 0.2 fell 31% / 12% / 41% / 61% / 86% at guides
-0.2 / 0.175 / 0.15 / 0.125 / 0.1 (session 20), so it trains with `guide_notch` 0.25
+0.2 / 0.175 / 0.15 / 0.125 / 0.1, so it trains with `guide_notch` 0.25
 (0.2 -> 0.15 -> 0.1125 -> 0.084 -> 0.059 -> 0.034 -> 0).
-The push stage can also end on a plateau (`push_plateau_steps`, session 11; 0 disables): when its
+The push stage can also end on a plateau (`push_plateau_steps`; 0 disables): when its
 highest level has not risen for that many env steps. The paper gives no push magnitude and says
 the gradual pushes "allowed for greater final disturbances", so the level a policy holds is a
 result, not a given. Under uniform pushes the longest wait before a rise was 8.5M steps (gaps
-0.5 -> 0.6, session 10), while stairs (at 1.0), jumps (0.8) and gaps (0.6) then held their
+0.5 -> 0.6), while stairs (at 1.0), jumps (0.8) and gaps (0.6) then held their
 levels for 4-12M steps with the milestone checks falling 36-64% and no trend (README, tuning
 log). `push_held` is the level a policy last met a milestone at: the highest level below its
 plateau. This host-side bookkeeping lives in progress.json, not in the traced state.
@@ -65,7 +65,7 @@ class CurriculumState(NamedTuple):
 
     @classmethod
     def from_dict(cls, d: dict) -> "CurriculumState":
-        # checkpoints before session 8 have no strikes
+        # checkpoints saved before the step-back patience existed have no strikes
         return cls(int(d["stage"]), float(d["difficulty"]), float(d["guide_scale"]),
                    float(d["push_scale"]), int(d.get("strikes", 0)))
 
@@ -79,7 +79,7 @@ def milestone(reward_per_step, progress_frac, cfg=None, fell_frac=0.0):
     """True when the mean reward per step, the progress (if asked) and the fall rate meet the
     milestone. The fall cap matters on artifact tracks: a policy that walks well and then falls
     into the gap still scores a high reward per step (gaps reached difficulty 1 with 70% of its
-    5 s evaluation episodes falling, session 6)."""
+    5 s evaluation episodes falling)."""
     cfg = cfg or default_curriculum_config()
     ok = reward_per_step >= cfg.reward_milestone * cfg.reward_per_step_max
     return ok & (progress_frac >= cfg.min_progress) & (fell_frac <= cfg.max_fell)
@@ -144,8 +144,8 @@ def push_high_update(high: float, high_step: int, stage: int, push_scale: float,
 
 
 def push_high_from_rows(rows) -> tuple[float, int]:
-    """`push_high_update` replayed over metrics.csv rows (checkpoints before session 11 did not
-    record it); rows without a curriculum column are skipped."""
+    """`push_high_update` replayed over metrics.csv rows (checkpoints saved before the plateau rule
+    existed did not record it); rows without a curriculum column are skipped."""
     high, high_step = 0.0, 0
     for r in rows:
         if r.get("curriculum/push_scale") not in (None, "") and r.get("curriculum/stage") not in (None, ""):

@@ -8,8 +8,8 @@ Unlike the switch estimators, the DQN is trained on the test domain: `mixed` tra
 every kind; training tracks have seeds `seed .. seed + n_tracks - 1`, evaluation tracks 30,000..).
 
 Input: the Q-network sees what the behaviour policies see -- the robot state (51), the heightmap
-(2400) and, when the suite was trained with it, the gait phase clock (2): the first
-`env.policy_observation_size` columns -- and the oracle detector's artifact kind as a one-hot (3):
+(2400) and, when the suite was trained with it, the gait phase clock (2): the `policy` columns of
+the env's `ObsLayout` -- and the oracle detector's artifact kind as a one-hot (3):
 `q_input(obs, detected_kind, n_policy_obs)`. The one-hot is rebuilt from
 `state.metrics["detected_kind"]` (the very value the env's `detector_one_hot` appends), so the
 DQN runs on an env made with or without `detector_one_hot`; `make_dqn_env` (the suite's env
@@ -40,9 +40,9 @@ of a forward pass of every env whenever any env ends). `log_every` iterations ru
 split over devices with `rollout.over_devices` as `evaluate multi` does.
 
 Input scaling: the Q-network normalises its input with statistics frozen when the buffer first
-holds `learning_starts` transitions (the state per column, the heightmap with one shared mean and
-std, the phase clock and the one-hot untouched; std floored at `norm_std_floor`; the normalised
-input clipped to +-10). They are part of the params (`params["norm"]`), so a checkpoint (with the
+holds `learning_starts` transitions (`normalizer.frozen_stats` of `norm_rows` of them: the state
+per column, the heightmap with one shared mean and std, the phase clock and the one-hot
+untouched; std floored at `norm_std_floor`; the normalised input clipped to +-`norm_clip`). They are part of the params (`params["norm"]`), so a checkpoint (with the
 run's `config.json` for the layer sizes) is enough to run the network.
 
 Replay buffer: a pytree of fixed-size arrays (a ring). Observations are stored split: the 51 state
@@ -86,32 +86,20 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from biped_switch.config import default_dqn_config
 from biped_switch.learning import policies as pol
-from biped_switch.simulation.env import STATE_SIZE
 from biped_switch.learning.networks import EncodedMLP
-from biped_switch.simulation.terrain import ARTIFACT_KINDS
+from biped_switch.learning.normalizer import standardize
+from biped_switch.simulation.observation import ONE_HOT_SIZE, layout
 
-N_KINDS = len(ARTIFACT_KINDS)  # artifact kinds the detector names (jumps, gaps, stairs)
+N_KINDS = ONE_HOT_SIZE  # artifact kinds the detector names (jumps, gaps, stairs)
 N_ACTIONS = len(pol.POLICY_NAMES)  # 4 policies: walk, jumps, gaps, stairs
-NORM_CLIP = 10.0
-NORM_ROWS = 16_384  # rows (strided over the warm-up transitions) the input statistics come from
 
 
 # ----------------------------------------------------------------------- pure pieces
-def policy_obs_size(env) -> int:
-    """Observation columns the behaviour policies read: robot state + heightmap (2451), + the
-    phase clock (2) when the env has one (`env.policy_observation_size`)."""
-    return env.policy_observation_size
-
-
-def hm_size(env) -> int:
-    """The heightmap's columns (2400), right after the robot state."""
-    return env.cfg.shape.grid_forward * env.cfg.shape.grid_lateral
-
-
 def q_input_size(env) -> int:
     """Q-network input columns: the policies' observation and the detector one-hot."""
-    return policy_obs_size(env) + N_KINDS
+    return layout(env).policy_size + N_KINDS
 
 
 def q_input(obs: jax.Array, detected_kind: jax.Array, n_policy_obs: int) -> jax.Array:
@@ -151,12 +139,14 @@ def epsilon_greedy(key: jax.Array, q: jax.Array, epsilon) -> jax.Array:
 
 
 # ----------------------------------------------------------------------- Q-network
-def make_q(net_cfg, hm_size: int, n_actions: int = N_ACTIONS):
+def make_q(net_cfg, hm_size: int, n_actions: int = N_ACTIONS, norm_clip: float | None = None):
     """(init(key, in_size) -> params, apply(params, x (B, in_size)) -> (B, n_actions)).
 
     The network is the policies' EncodedMLP (heightmap encoder `hm_hidden`, joined with the state
-    and the one-hot, MLP `hidden`, swish) behind a frozen input normaliser `params["norm"]`."""
+    and the one-hot, MLP `hidden`, swish) behind a frozen input normaliser `params["norm"]`; the
+    normalised input is clipped to +-`norm_clip` (default: the DQN config's)."""
 
+    clip = default_dqn_config().norm_clip if norm_clip is None else norm_clip
     module = EncodedMLP(out_size=n_actions, hidden=tuple(net_cfg.hidden),
                         hm_hidden=tuple(net_cfg.hm_hidden), hm_size=hm_size)
 
@@ -166,24 +156,9 @@ def make_q(net_cfg, hm_size: int, n_actions: int = N_ACTIONS):
 
     def apply(params, x):
         norm = params["norm"]
-        x = jnp.clip((x - norm["mean"]) / norm["std"], -NORM_CLIP, NORM_CLIP)
-        return module.apply(params["net"], x)
+        return module.apply(params["net"], standardize(x, norm["mean"], norm["std"], clip))
 
     return init, apply
-
-
-def input_norm(x: jax.Array, n_policy_obs: int, std_floor: float, n_hm: int | None = None) -> dict:
-    """Normaliser of Q inputs `x` (N, in_size): state columns each their own mean/std, the `n_hm`
-    heightmap columns after them (default: all up to `n_policy_obs`) one shared mean/std, the
-    rest (phase clock, one-hot; already in [-1, 1]) mean 0, std 1."""
-    x = x.astype(jnp.float32)
-    n_hm = n_policy_obs - STATE_SIZE if n_hm is None else n_hm
-    s, h = x[:, :STATE_SIZE], x[:, STATE_SIZE:STATE_SIZE + n_hm]
-    n_extra = x.shape[1] - STATE_SIZE - n_hm
-    hm_mean, hm_std = jnp.mean(h), jnp.std(h)
-    mean = jnp.concatenate([jnp.mean(s, 0), jnp.full(h.shape[1], hm_mean), jnp.zeros(n_extra)])
-    std = jnp.concatenate([jnp.std(s, 0), jnp.full(h.shape[1], hm_std), jnp.ones(n_extra)])
-    return {"mean": mean, "std": jnp.maximum(std, std_floor)}
 
 
 def dqn_loss(net_params, params, target, batch, q_apply, gamma, huber_delta):

@@ -16,8 +16,13 @@ from biped_switch.learning import policies as pol
 from biped_switch.simulation import rollout as rollout_lib
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
+from biped_switch.config import default_dqn_config
 from biped_switch.learning.replay import buffer_add, buffer_init, buffer_rows, buffer_sample
-from biped_switch.learning.dqn import NORM_ROWS, epsilon_at, epsilon_greedy, hm_size, input_norm, make_optimizer, make_q, make_update, oracle_bonus, policy_obs_size, q_input, q_input_size, sync_target
+from biped_switch.learning.dqn import epsilon_at, epsilon_greedy, make_optimizer, make_q, make_update, oracle_bonus, q_input, q_input_size, sync_target
+from biped_switch.learning.normalizer import frozen_stats
+from biped_switch.simulation.observation import layout
+from biped_switch.simulation.rollout import tree_where
+from biped_switch.simulation.detection import debounce_step
 
 
 # ----------------------------------------------------------------------- collection
@@ -29,11 +34,6 @@ class Collector(NamedTuple):
     ep_return: jax.Array  # env reward + bonus, unscaled
     ep_env_return: jax.Array
     ep_len: jax.Array  # int32 steps
-
-
-def _where(mask, new, old):
-    return jax.tree.map(lambda n, o: jnp.where(mask.reshape((-1,) + (1,) * (n.ndim - 1)), n, o),
-                        new, old)
 
 
 def reset_pool(env, key, size: int):
@@ -78,8 +78,8 @@ def collect_act(env, suite_apply, suite_params, q_apply, q_params, col: Collecto
     step `collector.state` with the actions and hand the result to `collect_record`."""
     k_reset, k_eps = jax.random.split(key)
     n = col.ep_len.shape[0]
-    p = policy_obs_size(env)
-    state = _where(col.need_reset, _from_pool(pool, k_reset, n), col.state)
+    p = layout(env).policy_size
+    state = tree_where(col.need_reset, _from_pool(pool, k_reset, n), col.state)
     keep = ~col.need_reset
     col = Collector(state, col.need_reset, jnp.where(keep, col.ep_return, 0.0),
                     jnp.where(keep, col.ep_env_return, 0.0), jnp.where(keep, col.ep_len, 0))
@@ -101,7 +101,7 @@ def collect_record(env, col: Collector, rec: dict, nxt, bonus, reward_scale, max
     ep_len = col.ep_len + 1
     end = (nxt.done > 0.5) | (ep_len >= max_steps)
     trans = {"obs": rec["obs"], "action": rec["choice"], "reward": reward_scale * (nxt.reward + b),
-             "next_obs": q_input(nxt.obs, nxt.metrics["detected_kind"], policy_obs_size(env)),
+             "next_obs": q_input(nxt.obs, nxt.metrics["detected_kind"], layout(env).policy_size),
              "done": (nxt.done > 0.5).astype(jnp.float32)}
     endf = end.astype(jnp.float32)
     m = nxt.metrics
@@ -154,16 +154,16 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
         raise ValueError("learning_starts must be in [1, replay_capacity]")
     if cfg.num_envs > cfg.replay_capacity:
         raise ValueError("num_envs must not exceed replay_capacity")
-    p = policy_obs_size(env)
+    lay = layout(env)
     in_size = q_input_size(env)
-    n_hm = hm_size(env)
-    q_init, q_apply = make_q(cfg.network, n_hm)
+    n_hm = lay.hm_size
+    q_init, q_apply = make_q(cfg.network, n_hm, norm_clip=cfg.norm_clip)
     optimizer = make_optimizer(cfg)
     update = make_update(q_apply, optimizer, cfg.gamma, cfg.huber_delta)
     max_steps = int(round(cfg.max_episode_s / env.dt))
     n_envs, eps = cfg.num_envs, cfg.epsilon
-    norm_idx = np.unique(np.linspace(0, cfg.learning_starts - 1, min(NORM_ROWS, cfg.learning_starts))
-                         .astype(np.int32))
+    norm_idx = np.unique(np.linspace(0, cfg.learning_starts - 1,
+                                     min(cfg.norm_rows, cfg.learning_starts)).astype(np.int32))
 
     @jax.jit
     def init_learner(key):
@@ -179,8 +179,8 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
         return TrainState(collector_init(pool, n_envs), *init_learner(key))
 
     def set_norm(params, target, buf):
-        norm = input_norm(buffer_rows(buf, jnp.asarray(norm_idx))["obs"], p, cfg.norm_std_floor,
-                          n_hm)
+        norm = frozen_stats(buffer_rows(buf, jnp.asarray(norm_idx))["obs"], cfg.norm_std_floor,
+                            n_hm, lay.state_size)
         return {**params, "norm": norm}, {**target, "norm": norm}
 
     def iteration(ts: TrainState, suite_params, pool):
@@ -310,14 +310,17 @@ def load_dqn(run_dir, in_size: int | None = None):
                          f"{in_size} (policy observation + one-hot); retrain it for this policy "
                          f"suite (make train-dqn)")
     net_cfg = config_dict.create(hidden=tuple(cfg.network.hidden), hm_hidden=tuple(cfg.network.hm_hidden))
-    _, q_apply = make_q(net_cfg, prog["hm_size"])
+    # a run that predates the `norm_clip` key ran with the default
+    _, q_apply = make_q(net_cfg, prog["hm_size"],
+                        norm_clip=cfg.get("norm_clip", default_dqn_config().norm_clip))
     params = jax.tree.map(jnp.asarray, _restore(ckpt)["online"])
     return q_apply, params
 
 
 # ----------------------------------------------------------------------- evaluation
 def dqn_rollout(env, suite_apply, suite_params, q_apply, q_params, rng: jax.Array, n_envs: int,
-                horizon: int, track_ids=None, chunk: int = 50, guide_scale=0.0) -> dict:
+                horizon: int, track_ids=None, chunk: int = 50, guide_scale=0.0, det_apply=None,
+                det_params=None) -> dict:
     """Episodes on the env's tracks with the greedy Q choice of policy at every step.
 
     Same protocol and keys as `switching.multi_rollout` (`rollout.run_episodes`: episodes frozen
@@ -325,24 +328,33 @@ def dqn_rollout(env, suite_apply, suite_params, q_apply, q_params, rng: jax.Arra
     every final env metric, `length` (live steps), `done` and `n_switches` (changes of the chosen
     policy, counted from walk, as multi_rollout's episodes start with walk active). The same rng
     gives the same start states as multi_rollout; `guide_scale` > 0 turns the scripted guides on
-    (pipeline checks)."""
-    p = policy_obs_size(env)
+    (pipeline checks). `det_apply`, `det_params`: a learned terrain detector's kind in place of the
+    oracle's (switching.detector)."""
+    p = layout(env).policy_size
     reset_keys, k_run = rollout_lib.episode_keys(rng, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
     state = rollout_lib.reset_by_track(env, reset_keys, track_ids,
                                        guide_scale=guide_scale)
 
+    steps = getattr(det_apply, "debounce_steps", 1)
+
     def act(c, state, live, _):
-        prev, n_sw = c
-        obs = q_input(state.obs, state.metrics["detected_kind"], p)
+        prev, n_sw, det = c
+        if det_apply is None:  # the oracle's
+            kind = state.metrics["detected_kind"]
+        else:  # the learned detector's, through the switching rollout's filter
+            yaw = jax.vmap(env.switch_inputs)(state)["yaw"]
+            det = debounce_step(*det, det_apply(det_params, state.obs, yaw)["kind"], steps)
+            kind = det[0].astype(jnp.float32)
+        obs = q_input(state.obs, kind, p)
         choice = jnp.argmax(q_apply(q_params, obs), axis=-1).astype(jnp.int32)
         action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs[:, :p]), choice)
         n_sw = n_sw + (live & (choice != prev)).astype(jnp.int32)
-        return action, (jnp.where(live, choice, prev), n_sw), None
+        return action, (jnp.where(live, choice, prev), n_sw, det), None
 
-    zi = jnp.zeros(n_envs, jnp.int32)
-    ep = rollout_lib.run_episodes(env, state, horizon, act, (zi, zi), chunk=chunk)
+    zi, mi = jnp.zeros(n_envs, jnp.int32), jnp.full(n_envs, -1, jnp.int32)
+    ep = rollout_lib.run_episodes(env, state, horizon, act, (zi, zi, (mi, mi, zi)), chunk=chunk)
     return {**ep.metrics, "length": ep.length, "done": ep.done, "n_switches": ep.carry[1]}
 
 

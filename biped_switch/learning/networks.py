@@ -1,8 +1,14 @@
-"""Networks on the observation [robot state (51), heightmap (rows*cols), extras].
+"""Networks on the observation [robot state (51), heightmap (rows*cols), extras] (the column ranges:
+`simulation.observation.ObsLayout`), and the one heightmap encoder they share.
 
-`PolicyValueMLP`: the PPO policy and value networks (ppo.py), on the lean pooled heightmap by
-default or through a heightmap MLP encoder. `EncodedMLP`: the heightmap through its own MLP
-encoder, joined with the state and the extras (the DQN selector's Q-network).
+`encode`: the state, the heightmap through its own MLP encoder (or mean-pooled), and the extras,
+joined into one vector. `PolicyValueMLP`: the PPO policy and value networks (ppo.py), on the lean
+pooled heightmap by default or through the encoder. `EncodedMLP`: the encoder and an MLP (the DQN
+selector's Q-network). The switch estimators (switching/estimator.py) use the encoder too.
+
+The encoder is a function, not a submodule: it creates its Dense layers in the calling module's
+`linen.compact` method, so their parameters sit directly in that module's tree (Dense_<i>, or
+<prefix>_<i> with a `prefix`), as in every checkpoint saved so far.
 """
 
 from __future__ import annotations
@@ -13,40 +19,30 @@ import jax
 import jax.numpy as jnp
 from flax import linen
 
-from biped_switch.simulation.env import STATE_SIZE
+from biped_switch.simulation.observation import STATE_SIZE, split_columns
 
 
-class EncodedMLP(linen.Module):
-    out_size: int
-    hidden: Sequence[int]
-    hm_hidden: Sequence[int]
-    hm_size: int
-    state_size: int = STATE_SIZE
-
-    @linen.compact
-    def __call__(self, obs):
-        s = obs[..., : self.state_size]
-        h = obs[..., self.state_size: self.state_size + self.hm_size]
-        extra = obs[..., self.state_size + self.hm_size:]
-        init = jax.nn.initializers.lecun_uniform()
-        for n in self.hm_hidden:
-            h = linen.swish(linen.Dense(n, kernel_init=init)(h))
-        x = jnp.concatenate([s, h, extra], axis=-1)
-        for n in self.hidden:
-            x = linen.swish(linen.Dense(n, kernel_init=init)(x))
-        return linen.Dense(self.out_size, kernel_init=init)(x)
+def swish_mlp(x, sizes: Sequence[int], kernel_init=linen.linear.default_kernel_init,
+              prefix: str | None = None):
+    """Dense + swish layers of `sizes`, named `<prefix>_<i>` (default: Flax's Dense_<n>). Call it
+    inside a `linen.compact` method: the layers belong to that module."""
+    for i, n in enumerate(sizes):
+        name = None if prefix is None else f"{prefix}_{i}"
+        x = linen.swish(linen.Dense(n, kernel_init=kernel_init, name=name)(x))
+    return x
 
 
-# ----------------------------------------------------------------------------- the project's PPO
-def obs_layout(env) -> dict:
-    """Sizes of the policy observation's parts: robot state, heightmap grid (rows, cols), extras
-    (the phase clock); "size" = all of it, the leading columns of the env's observation (a
-    detector one-hot after them is the DQN selector's, never a behaviour policy's)."""
-    sh = env.cfg.shape
-    hm = sh.grid_forward * sh.grid_lateral
-    size = getattr(env, "policy_observation_size", env.observation_size)
-    return {"state": STATE_SIZE, "grid": (sh.grid_forward, sh.grid_lateral),
-            "extra": size - STATE_SIZE - hm, "size": size}
+def encode(obs, state_size: int, hm_size: int, hm_hidden: Sequence[int],
+           kernel_init=linen.linear.default_kernel_init, prefix: str | None = None, pool=None):
+    """[state, encoded heightmap, extras] of `obs` (..., state | heightmap | extras): the heightmap
+    through `swish_mlp(hm_hidden)` (layers `<prefix>_<i>`), or with `pool` ((grid, block)) mean-
+    pooled by `encode_heightmap` instead. Call it inside a `linen.compact` method."""
+    s, h, extra = split_columns(obs, state_size, hm_size)
+    if pool is None:
+        h = swish_mlp(h, hm_hidden, kernel_init, prefix)
+    else:
+        h = encode_heightmap(h, *pool)
+    return jnp.concatenate([s, h, extra], axis=-1)
 
 
 def encode_heightmap(hm, grid, pool):
@@ -59,6 +55,24 @@ def encode_heightmap(hm, grid, pool):
         raise ValueError(f"heightmap pool {pool} does not divide the {r}x{c} grid")
     h = hm.reshape(hm.shape[:-1] + (r // pr, pr, c // pc, pc))
     return jnp.mean(h, axis=(-3, -1)).reshape(hm.shape[:-1] + (r // pr * (c // pc),))
+
+
+class EncodedMLP(linen.Module):
+    """The heightmap through the encoder `hm_hidden`, joined with the state and the extras, an MLP
+    `hidden` (swish), a linear output (the DQN selector's Q-network)."""
+
+    out_size: int
+    hidden: Sequence[int]
+    hm_hidden: Sequence[int]
+    hm_size: int
+    state_size: int = STATE_SIZE
+
+    @linen.compact
+    def __call__(self, obs):
+        init = jax.nn.initializers.lecun_uniform()
+        x = encode(obs, self.state_size, self.hm_size, self.hm_hidden, init)
+        x = swish_mlp(x, self.hidden, init)
+        return linen.Dense(self.out_size, kernel_init=init)(x)
 
 
 class PolicyValueMLP(linen.Module):
@@ -77,20 +91,11 @@ class PolicyValueMLP(linen.Module):
 
     @linen.compact
     def __call__(self, obs):
-        hm_size = self.grid[0] * self.grid[1]
-        s = obs[..., : self.state_size]
-        h = obs[..., self.state_size: self.state_size + hm_size]
-        extra = obs[..., self.state_size + hm_size:]
-        init = jax.nn.initializers.lecun_uniform()
-        if self.encoding == "pool":
-            h = encode_heightmap(h, self.grid, self.pool)
-        elif self.encoding == "mlp":
-            for n in self.hm_hidden:
-                h = linen.swish(linen.Dense(n, kernel_init=init)(h))
-        else:
+        if self.encoding not in ("pool", "mlp"):
             raise ValueError(f"unknown heightmap encoding {self.encoding!r}; expected pool or mlp")
-        x = jnp.concatenate([s, h, extra], axis=-1)
-        for n in self.hidden:
-            x = linen.swish(linen.Dense(n, kernel_init=init)(x))
+        init = jax.nn.initializers.lecun_uniform()
+        x = encode(obs, self.state_size, self.grid[0] * self.grid[1], self.hm_hidden, init,
+                   pool=(self.grid, self.pool) if self.encoding == "pool" else None)
+        x = swish_mlp(x, self.hidden, init)
         return linen.Dense(self.out_size, kernel_init=jax.nn.initializers.variance_scaling(
             0.01, "fan_in", "uniform"))(x)

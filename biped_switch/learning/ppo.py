@@ -13,11 +13,11 @@ of `num_minibatches` clipped-surrogate minibatch updates (Adam, global-norm clip
 Gaussian with a state-independent log std; the env clips actions to [-1, 1]. `max_action_std`
 (0: none) holds each joint's std at or under a cap by projecting the log std after every update
 and before every rollout: the entropy bonus otherwise drives up the std of joints whose noise the
-guides absorb (README, session 22). Observation
-normalisation: running mean/std of the robot state and the extras (the heightmap, already in
-[0, 1], is fed raw so that a policy trained on flat ground meets steps without exploding inputs);
-the statistics are updated after each iteration's updates, so the updates see the same inputs
-as the collection did.
+guides absorb (README, Training). Observation
+normalisation (normalizer.py): running mean/std of the robot state and the extras (the heightmap,
+already in [0, 1], is fed raw so that a policy trained on flat ground meets steps without
+exploding inputs); the statistics are updated after each iteration's updates, so the updates see
+the same inputs as the collection did.
 
 Everything that a resume needs is in `TrainState` (parameters, optimiser moments, normaliser);
 the env state is not saved (a resume starts fresh episodes).
@@ -33,17 +33,9 @@ import numpy as np
 import optax
 
 from biped_switch.learning import networks
-
-
-class Normalizer(NamedTuple):
-    mean: jax.Array  # (O,)
-    var: jax.Array  # (O,)
-    count: jax.Array  # ()
-
-    @classmethod
-    def from_tree(cls, tree: dict) -> "Normalizer":
-        """From a checkpoint's {"mean", "var", "count"}."""
-        return cls(**{k: jnp.asarray(tree[k]) for k in cls._fields})
+from biped_switch.learning.normalizer import Normalizer, normalize, update_normalizer  # noqa: F401  (Normalizer re-exported)
+from biped_switch.simulation.observation import layout
+from biped_switch.simulation.rollout import tree_where
 
 
 class TrainState(NamedTuple):
@@ -62,39 +54,17 @@ class Trainer(NamedTuple):
 
 
 def norm_mask(env) -> np.ndarray:
-    """1 for the observation entries that are normalised (robot state, extras), 0 for the heightmap."""
-    lay = networks.obs_layout(env)
-    hm = lay["grid"][0] * lay["grid"][1]
-    return np.concatenate([np.ones(lay["state"]), np.zeros(hm), np.ones(lay["extra"])]).astype(np.float32)
-
-
-def normalize(norm: Normalizer, obs, mask, clip=10.0):
-    std = jnp.sqrt(norm.var + 1e-6)
-    z = jnp.clip((obs - norm.mean) / std, -clip, clip)
-    return jnp.where(mask > 0, z, obs)
-
-
-def update_normalizer(norm: Normalizer, batch, axis_name=None) -> Normalizer:
-    """Chan et al.'s parallel update of a running mean/variance with a batch (N, O); with
-    `axis_name`, the batch is the union of every device's (inside pmap)."""
-    n = batch.shape[0]
-    mean_b = jnp.mean(batch, axis=0)
-    var_b = jnp.var(batch, axis=0)
-    if axis_name is not None:
-        mean_l = mean_b
-        mean_b = jax.lax.pmean(mean_l, axis_name)
-        var_b = jax.lax.pmean(var_b + (mean_l - mean_b) ** 2, axis_name)
-        n = n * jax.lax.psum(1, axis_name)
-    tot = norm.count + n
-    delta = mean_b - norm.mean
-    mean = norm.mean + delta * n / tot
-    m2 = norm.var * norm.count + var_b * n + delta ** 2 * norm.count * n / tot
-    return Normalizer(mean, m2 / tot, tot)
+    """Over the policy observation: 1 for the columns that are normalised (robot state, phase
+    clock), 0 for the heightmap."""
+    lay = layout(env)
+    mask = np.ones(lay.policy_size, np.float32)
+    mask[lay.heightmap] = 0.0
+    return mask
 
 
 def make_networks(net_cfg, env):
-    lay = networks.obs_layout(env)
-    kw = dict(state_size=lay["state"], grid=lay["grid"], encoding=net_cfg.encoding,
+    lay = layout(env)
+    kw = dict(state_size=lay.state_size, grid=lay.grid, encoding=net_cfg.encoding,
               pool=tuple(net_cfg.pool), hm_hidden=tuple(net_cfg.hm_hidden))
     pi = networks.PolicyValueMLP(env.action_size, tuple(net_cfg.policy_hidden), **kw)
     vf = networks.PolicyValueMLP(1, tuple(net_cfg.value_hidden), **kw)
@@ -105,10 +75,10 @@ def make_policy(net_cfg, env):
     """(params, norm, obs (B, >= policy obs), rng, deterministic) -> actions (B, 12), unclipped."""
     pi, _ = make_networks(net_cfg, env)
     mask = jnp.asarray(norm_mask(env))
-    size = networks.obs_layout(env)["size"]
+    cols = layout(env).policy
 
     def policy(params, norm, obs, rng, deterministic=True):
-        mean = pi.apply(params["policy"], normalize(norm, obs[..., :size], mask))
+        mean = pi.apply(params["policy"], normalize(norm, obs[..., cols], mask))
         if deterministic:
             return mean
         return mean + jnp.exp(params["log_std"]) * jax.random.normal(rng, mean.shape)
@@ -163,7 +133,7 @@ def make_train(cfg, env) -> Trainer:
     policy = make_policy(cfg.network, env)
     tx = optax.chain(optax.clip_by_global_norm(p.max_grad_norm),
                      optax.adam(p.learning_rate, eps=1e-5))
-    obs_size = networks.obs_layout(env)["size"]
+    obs_size = layout(env).policy_size
     if obs_size != env.observation_size:
         raise ValueError(f"the training env's observation ({env.observation_size}) must be the "
                          f"policy observation ({obs_size}): train without detector_one_hot")
@@ -181,18 +151,13 @@ def make_train(cfg, env) -> Trainer:
         dummy = jnp.zeros((1, obs_size))
         params = {"policy": pi.init(k_pi, dummy), "value": vf.init(k_vf, dummy),
                   "log_std": jnp.full((env.action_size,), np.log(p.init_action_std), jnp.float32)}
-        norm = Normalizer(jnp.zeros(obs_size), jnp.ones(obs_size), jnp.asarray(1e-4))
-        return TrainState(cap_std(params), tx.init(params), norm)
+        return TrainState(cap_std(params), tx.init(params), Normalizer.fresh(obs_size))
 
     def reset_envs(rng, curr):
         keys = jax.random.split(rng, n_envs)
         d, g, push = curr[0], curr[1], curr[2]
         state = jax.vmap(lambda k: env.reset(k, d, guide_scale=g, push_scale=push))(keys)
         return state, jnp.zeros(n_envs, jnp.int32), jnp.zeros(n_envs)
-
-    def where_tree(c, a, b):
-        return jax.tree.map(lambda x, y: jnp.where(c.reshape(c.shape + (1,) * (x.ndim - 1)), x, y),
-                            a, b)
 
     def iteration(ts: TrainState, envs, rng, curr):
         ts = ts._replace(params=cap_std(ts.params))  # a run resumed under a new cap
@@ -214,14 +179,17 @@ def make_train(cfg, env) -> Trainer:
             end = term | trunc
             ret = ret + nxt.reward
             m = nxt.metrics
-            out = {"obs": obs, "action": action, "logp": logp, "value": value,
+            # 1 where the env uses this action (a setup env's frozen phases: 0); the policy
+            # loss is weighted by it, values and GAE run over every step (switching/setup.py)
+            learner = state.info.get("learner_acts", jnp.ones_like(nxt.reward))
+            out = {"obs": obs, "action": action, "logp": logp, "value": value, "learner": learner,
                    "reward": nxt.reward, "term": term.astype(jnp.float32),
                    "trunc": trunc.astype(jnp.float32),
                    "ep_end": end.astype(jnp.float32), "ep_return": ret, "ep_length": t,
                    "ep_success": m["success"], "ep_fell": m["fell"],
                    "ep_distance_m": m["distance_m"], "ep_progress": m["progress_frac"],
                    "terms": {k: v for k, v in m.items() if k.startswith("reward/")}}
-            state = where_tree(end, fresh, nxt)
+            state = tree_where(end, fresh, nxt)
             return (state, jnp.where(end, 0, t), jnp.where(end, 0.0, ret)), out
 
         (env_state, ep_t, ep_ret), tr = jax.lax.scan(step, (env_state, ep_t, ep_ret),
@@ -233,7 +201,7 @@ def make_train(cfg, env) -> Trainer:
                   p.discounting, p.gae_lambda)
         target = adv + tr["value"]
         flat = {k: tr[k].reshape((n_batch,) + tr[k].shape[2:])
-                for k in ("obs", "action", "logp", "value")}
+                for k in ("obs", "action", "logp", "value", "learner")}
         flat["adv"], flat["target"] = adv.reshape(-1), target.reshape(-1)
         flat["mask"] = 1.0 - tr["trunc"].reshape(-1)
 
@@ -242,11 +210,14 @@ def make_train(cfg, env) -> Trainer:
             mean = pi.apply(params["policy"], obs_n)
             logp = _gaussian_logp(mb["action"], mean, params["log_std"])
             ratio = jnp.exp(logp - mb["logp"])
+            lm = mb["learner"]  # 1 on the learner's own steps (all, but in a setup env)
+            n_l = jnp.maximum(jnp.sum(lm), 1.0)
             a = mb["adv"]
-            a = (a - jnp.mean(a)) / (jnp.std(a) + 1e-8)
+            a_mean = jnp.sum(a * lm) / n_l  # = jnp.mean and jnp.std when every step is the learner's
+            a = (a - a_mean) / (jnp.sqrt(jnp.sum(lm * (a - a_mean) ** 2) / n_l) + 1e-8)
             surr = jnp.minimum(ratio * a, jnp.clip(ratio, 1 - p.clipping_epsilon,
                                                    1 + p.clipping_epsilon) * a)
-            w = mb["mask"]
+            w = mb["mask"] * lm
             pg = -jnp.sum(surr * w) / jnp.maximum(jnp.sum(w), 1.0)
             v = vf.apply(params["value"], obs_n)[..., 0]
             v_loss = 0.5 * jnp.mean((v - mb["target"]) ** 2)
@@ -283,6 +254,7 @@ def make_train(cfg, env) -> Trainer:
         metrics = {k: pmean(jnp.mean(v)) for k, v in info.items()}
         metrics.update({
             "train/reward_per_step": pmean(jnp.mean(tr["reward"])),
+            "train/learner_frac": pmean(jnp.mean(tr["learner"])),  # steps the learner acted
             "train/action_std": jnp.mean(jnp.exp(params["log_std"])),
             "train/action_std_max": jnp.max(jnp.exp(params["log_std"])),  # the noisiest joint
             "episode/count": n_end,

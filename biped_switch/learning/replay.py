@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import jax
 import jax.numpy as jnp
-from biped_switch.simulation.env import STATE_SIZE
+from biped_switch.simulation.observation import STATE_SIZE
 
 
 # ----------------------------------------------------------------------- replay buffer

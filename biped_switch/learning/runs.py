@@ -19,6 +19,7 @@ resumes from them (`restore_committed`).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -38,6 +39,19 @@ except ImportError:  # pragma: no cover
     SummaryWriter = None
 
 PROGRESS = "progress.json"
+_FALLBACK = [True]  # whether a run folder may fall back on its committed copy (`no_committed_copy`)
+
+
+@contextlib.contextmanager
+def no_committed_copy():
+    """Within it, a run folder never falls back on its committed copy under models/ (no resume
+    from it, no config or train.log taken from it): a recipe replay (`learning.recipe`) trains
+    from scratch, though its run has the committed run's name."""
+    _FALLBACK.append(False)
+    try:
+        yield
+    finally:
+        _FALLBACK.pop()
 
 
 class RunFileError(ValueError):
@@ -81,7 +95,7 @@ def read_config(run_dir: pathlib.Path, committed: bool = False) -> dict:
     """The run's config.json as saved ({} when it has none); `committed`: else its committed
     copy's under models/policies/ (what a resume on a fresh clone restores)."""
     for d in (pathlib.Path(run_dir),) + ((COMMITTED_DIR / pathlib.Path(run_dir).name,)
-                                          if committed else ()):
+                                          if committed and _FALLBACK[-1] else ()):
         if (d / "config.json").is_file():
             return read_json(d / "config.json")
     return {}
@@ -179,7 +193,8 @@ def restore_committed(run_dir: pathlib.Path, print_fn=print,
     """A run absent from runs/ resumes from its committed copy under `committed_root`
     (default `COMMITTED_DIR`, models/policies/, for PPO; models/baselines/ for the DQN)."""
     committed = (committed_root or COMMITTED_DIR) / run_dir.name
-    if latest_checkpoint(run_dir) is None and latest_checkpoint(committed) is not None:
+    if (_FALLBACK[-1] and latest_checkpoint(run_dir) is None
+            and latest_checkpoint(committed) is not None):
         run_dir.mkdir(parents=True, exist_ok=True)
         for item in committed.iterdir():
             dst = run_dir / item.name
@@ -196,7 +211,7 @@ def train_log(run_dir: pathlib.Path, print_fn=print, committed_root: pathlib.Pat
     committed copy's. Starts the session's part with a dated header."""
     path = pathlib.Path(run_dir) / "train.log"
     committed = (committed_root or COMMITTED_DIR) / pathlib.Path(run_dir).name / "train.log"
-    if not path.exists() and committed.exists():
+    if _FALLBACK[-1] and not path.exists() and committed.exists():
         shutil.copy2(committed, path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("a") as f:

@@ -44,7 +44,7 @@ from biped_switch.learning.policies import POLICY_NAMES
 from biped_switch.simulation.rollout import rollout, summarize
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
 
-# "mixed": the end-to-end baseline (issue 5), one policy trained on multi-artifact tracks with the
+# "mixed": the end-to-end baseline (Table II's "End-to-end"), one policy trained on multi-artifact tracks with the
 # same reward and guided curriculum
 TRAIN_KINDS = POLICY_NAMES + ("mixed",)
 
@@ -135,7 +135,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         end, held = prog.get("curriculum_end"), prog.get("push_held")
         if "push_high" in prog:
             high, high_step = float(prog["push_high"]), int(prog["push_high_step"])
-        else:  # checkpoints before session 11
+        else:  # checkpoints saved before the push plateau was recorded
             high, high_step = curr_lib.push_high_from_rows(logger.rows(until=step))
         # a resumed run keeps the provenance of its start (the warm-start checkpoint, if any)
         cfg.warm_start = cfg.warm_start or runs_lib.read_config(run_dir).get("warm_start", "")
@@ -271,7 +271,7 @@ def probe_guides(run_dir: pathlib.Path, guide_levels, seed: int = 0) -> dict:
     """The curriculum check of a run's latest checkpoint at other guide levels, the
     checkpoint's own difficulty and push level, one rng for all: how tightly a policy is tuned to
     the guide level it trained at, and so whether a check that collapses after a cut fails on the
-    level or on the chunk trained after the cut (README, session 16)."""
+    level or on the chunk trained after the cut (README, Training)."""
     bad = [g for g in guide_levels if not 0.0 <= float(g) <= 1.0]
     if bad:
         raise ValueError(f"guide levels {bad} are outside [0, 1]")

@@ -1,4 +1,7 @@
-"""Training curves of a run folder's metrics.csv: PPO's and the DQN's, one figure module for both (the notebooks draw through it too). Plain Python and matplotlib."""
+"""Training curves of a run folder's metrics.csv: PPO's and the DQN's, one figure module for both.
+`ppo_figure`, `dqn_figure` and `run_figure` (either, by the run's metrics) return the figure, which
+the notebooks show; `ppo_curves` and `dqn_curves` save it as the run's curves.png. Plain Python and
+matplotlib."""
 
 from __future__ import annotations
 
@@ -8,16 +11,22 @@ import pathlib
 from biped_switch.learning.runs import curve_series
 
 
-def ppo_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
-    """Training curves of a run (metrics.csv): episode reward and length, eval reward per step,
-    curriculum values, against environment steps."""
-    # lazy: matplotlib loads slowly and only the plots need it; the backend is chosen before pyplot
-    import matplotlib
+def _rows(run_dir) -> list[dict]:
+    with (pathlib.Path(run_dir) / "metrics.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    rows = list(csv.DictReader((pathlib.Path(run_dir) / "metrics.csv").open()))
+def is_dqn_run(rows: list[dict]) -> bool:
+    """Whether metrics.csv rows are the DQN's (its episode keys) rather than PPO's."""
+    return bool(rows) and "episode_env_return" in rows[0]
+
+
+def ppo_figure(run_dir, title: str | None = None):
+    """Training curves of a PPO run (metrics.csv): episode reward and length, eval reward per
+    step and falls, curriculum values, against environment steps; `title` default: the run dir."""
+    import matplotlib.pyplot as plt  # lazy: matplotlib loads slowly and only the plots need it
+
+    rows = _rows(run_dir)
     # rows of a window in which no episode ended carry no episode statistics (runs of before
     # 2026-12-01 logged zeros there; an ended episode lasts at least one step)
     ep_rows = [r for r in rows if float(r.get("episode/length") or 0.0) > 0.0]
@@ -39,37 +48,23 @@ def ppo_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
     fell_ax.plot(xy[:, 0], xy[:, 1], "r.:", label="fell")
     fell_ax.set_ylabel("fraction fell", color="r")
     fell_ax.set_ylim(-0.02, 1.02)
-    axes[1].set_title("milestone rollout (current curriculum; 5 s to session 6, then 20 s)")
+    # the run's eval.horizon_steps sets the episode length (older runs: 5 s episodes, then 20 s)
+    axes[1].set_title("milestone rollout at the current curriculum level")
     for key in ("difficulty", "guide_scale", "push_scale"):  # logged with every epoch
         xy = series(key)
         axes[2].step(xy[:, 0], xy[:, 1], where="post", label=key)
     axes[2].set_title("curriculum")
     axes[2].legend(fontsize=8)
-    save_curves(fig, axes, run_dir, out_png)
+    return _finish(fig, axes, run_dir, title)
 
 
-def save_curves(fig, axes, run_dir, out_png) -> None:
-    """The common end of a run's curve figure: step axes, the run as the title, saved, closed."""
-    import matplotlib.pyplot as plt
-
-    for ax in axes:
-        ax.set_xlabel("environment steps")
-    fig.suptitle(str(run_dir))
-    fig.tight_layout()
-    fig.savefig(out_png, dpi=110)
-    plt.close(fig)
-
-
-def dqn_curves(run_dir, out_png) -> None:
+def dqn_figure(run_dir, title: str | None = None):
     """The DQN's learning curves (metrics.csv, one row per jitted call): episode return and
-    success, the share of steps on the oracle's policy, and the TD loss, Q and epsilon."""
-    import matplotlib  # lazy, as runs.plot_curves
+    success, the share of steps on the oracle's policy, the TD loss, Q and epsilon, and the
+    greedy evaluations; `title` default: the run dir."""
+    import matplotlib.pyplot as plt  # lazy, as ppo_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    with (pathlib.Path(run_dir) / "metrics.csv").open() as f:
-        rows = list(csv.DictReader(f))
+    rows = _rows(run_dir)
     ep_rows = [r for r in rows if float(r.get("episodes") or 0) > 0]
 
     def series(key, src=rows):
@@ -106,4 +101,40 @@ def dqn_curves(run_dir, out_png) -> None:
         axes[3].set_xlim(axes[0].get_xlim())  # the same steps as the others (it may start late)
         axes[3].legend(fontsize=8)
         axes[3].set_title(f"greedy selector, {n_ep} fixed training tracks (each chunk)")
-    save_curves(fig, axes, run_dir, out_png)
+    return _finish(fig, axes, run_dir, title)
+
+
+def run_figure(run_dir, title: str | None = None):
+    """`dqn_figure` of a DQN run, else `ppo_figure`."""
+    return (dqn_figure if is_dqn_run(_rows(run_dir)) else ppo_figure)(run_dir, title)
+
+
+def _finish(fig, axes, run_dir, title):
+    """The common end of a run's curve figure: step axes, a grid, the run as the title."""
+    for ax in axes:
+        ax.set_xlabel("environment steps")
+        ax.grid(alpha=0.3)
+    fig.suptitle(str(run_dir) if title is None else title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def _save(make_figure, run_dir, out_png) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")  # before pyplot is first imported: no display needed
+    import matplotlib.pyplot as plt
+
+    fig = make_figure(run_dir)
+    fig.savefig(out_png, dpi=110)
+    plt.close(fig)
+
+
+def ppo_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
+    """`ppo_figure` of a run, saved to `out_png` (its curves.png)."""
+    _save(ppo_figure, run_dir, out_png)
+
+
+def dqn_curves(run_dir, out_png) -> None:
+    """`dqn_figure` of a run, saved to `out_png` (its curves.png)."""
+    _save(dqn_figure, run_dir, out_png)

@@ -1,7 +1,9 @@
 """Fig. 4b of the paper read back: the switch-point lookup tables `python -m biped_switch.sweep`
 writes (<results>/lookup/lookup_<init>.json), as arrays, as per-pair rows and with their provenance
-(how many sweep points, stand-in policies, guide forces). The drawing is the notebook's
-(experiments/notebooks/fig4b_switch_success.ipynb); the sweeps themselves are sweep.py's.
+(how many sweep points, stand-in policies, guide forces), and drawn: `switch_success_figure` is
+the one drawing of Fig. 4b, saved beside the lookup table by the sweep command (`draw_lookup`) and
+shown by the notebook (experiments/notebooks/fig4b_switch_success.ipynb); the sweeps themselves
+are sweep.py's.
 """
 
 from __future__ import annotations
@@ -18,12 +20,16 @@ from biped_switch.stats import smoothed_success_pct
 
 
 def lookup_arrays(doc: dict) -> dict:
-    """{target: {"rate": (P, nb) NaN where no data, "count": (P, nb), "bins_m": (nb,)}}."""
+    """{target: {"rate": (P, nb) NaN where no data, "count": (P, nb), "bins_m": (nb,), "best_m":
+    (P,) the best switch distance, NaN for the target itself or no data}}: the tables the sweep
+    command draws from (switching.lookup), read back from a lookup JSON."""
     out = {}
     for target, t in doc["tables"].items():
         rate = np.array([[np.nan if v is None else v for v in r] for r in t["rate"]], float)
         count = np.asarray(t["count"], float)
-        out[target] = {"rate": rate, "count": count, "bins_m": np.arange(rate.shape[1]) * 0.01}
+        best = [doc["best_m"].get(f"{name}->{target}") for name in POLICY_NAMES]
+        out[target] = {"rate": rate, "count": count, "bins_m": np.arange(rate.shape[1]) * 0.01,
+                       "best_m": np.array([np.nan if b is None else b for b in best], float)}
     return out
 
 
@@ -127,32 +133,52 @@ def plot_switch_distances(by_method: dict, path=None, kind: str = "gaps"):
     return None
 
 
-def plot_switch_success(tables: dict, path: pathlib.Path, title: str = "",
-                        smooth_bins: int = 5) -> None:
-    """The paper's Fig. 4b: success of switching against distance to the artifact, per pair."""
-    import matplotlib
+POLICY_COLOURS = {"walk": "tab:blue", "jumps": "tab:orange", "gaps": "tab:purple",
+                  "stairs": "tab:brown"}
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(tables), figsize=(5 * len(tables), 3.6), squeeze=False)
+def switch_success_figure(tables: dict, title: str = "", smooth_bins: int = 5):
+    """The paper's Fig. 4b: success of switching against distance to the artifact, per (source ->
+    target) pair, one panel per target: each 1 cm bin's success rate (dots, sized by its points),
+    their moving mean over `smooth_bins` bins (lines) and the best switch distance (dotted).
+    `tables`: {target: {"rate", "count", "bins_m", "best_m"}} (switching.lookup's, or
+    `lookup_arrays` of a lookup JSON). Returns the figure, open (a notebook shows it)."""
+    import matplotlib.pyplot as plt  # lazy: only the figure needs it
+
+    fig, axes = plt.subplots(1, len(tables), figsize=(5.2 * len(tables), 3.8), squeeze=False)
     for ax, (target, t) in zip(axes[0], tables.items()):
         for j, name in enumerate(POLICY_NAMES):
             cnt = t["count"][j]
             if name == target or cnt.sum() == 0:
                 continue
+            c = POLICY_COLOURS.get(name)
+            ax.scatter(t["bins_m"] + 0.005, 100 * t["rate"][j], s=4 + 20 * cnt / cnt.max(),
+                       color=c, alpha=0.25, lw=0)
             ax.plot(t["bins_m"] + 0.005, smoothed_success_pct(t["rate"][j], cnt, smooth_bins),
-                    label=f"{name} -> {target} (n={int(cnt.sum())})")
+                    color=c, label=f"{name} -> {target} (n={int(cnt.sum())})")
             if np.isfinite(t["best_m"][j]):
-                ax.axvline(t["best_m"][j], ls=":", lw=0.8, color=ax.lines[-1].get_color())
+                ax.axvline(t["best_m"][j], ls=":", lw=1, color=c)
         ax.set_xlim(0.9, 0)  # the robot approaches from the left: far -> near
         ax.set_ylim(-2, 102)
         ax.set_xlabel("switch distance before the artifact [m]")
-        ax.set_ylabel(f"% success (moving mean of {smooth_bins} cm)")
-        ax.set_title(f"switch to {target}")
-        ax.legend(fontsize=7)
+        ax.set_ylabel(f"% success (moving mean, {smooth_bins} cm)")
+        ax.set_title(f"switch to {target}", fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower left")
     fig.suptitle(textwrap.fill(title, 70 * len(tables)), fontsize=9)  # one panel: 2 lines
     fig.tight_layout()
+    return fig
+
+
+def plot_switch_success(tables: dict, path: pathlib.Path, title: str = "",
+                        smooth_bins: int = 5) -> None:
+    """`switch_success_figure`, saved to `path` and closed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = switch_success_figure(tables, title, smooth_bins)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -162,5 +188,6 @@ def draw_lookup(tables: dict, init: str, out: pathlib.Path) -> pathlib.Path:
     what = (f"{init.removesuffix('_context')} init, after the source's own artifact"
             if init.endswith("_context") else f"{init} init")
     path = pathlib.Path(out) / f"fig4b_{init}.png"
-    plot_switch_success(tables, path, f"{what}: switch success against distance (sweep data)")
+    plot_switch_success(tables, path, f"{what}: switch success against distance (sweep data; "
+                        "dots: 1 cm bins, size ~ points; dotted: best distance)")
     return path

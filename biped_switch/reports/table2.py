@@ -42,6 +42,47 @@ def failures_by_context(tracks, progress_frac, fell, fail_kind,
     return out
 
 
+def policy_on_falls(tracks, progress_frac, fell, fail_kind, active_at_start,
+                    detect_range_m: float | None = None) -> dict:
+    """{kind: {"falls", "wrong_policy", "before_start"}}: the falls charged to an artifact (as
+    `failures_by_context` charges them), those where another policy than the artifact's was
+    acting as the CoM came over its start (a missed or wrong detection: with the oracle the 1 cm
+    force rules that out), and those before its start was reached."""
+    if detect_range_m is None:
+        detect_range_m = float(default_env_config().detect_range_m)
+    out = {k: {"falls": 0, "wrong_policy": 0, "before_start": 0} for k in ARTIFACT_KINDS}
+    for i, t in enumerate(tracks):
+        _, reached = _reached(t, progress_frac[i], detect_range_m)
+        if not reached or fell[i] < 0.5:
+            continue
+        k = reached[-1]
+        kind = t.artifacts[k][0]
+        if int(fail_kind[i]) != ARTIFACT_KINDS.index(kind):
+            continue
+        cell = out[kind]
+        cell["falls"] += 1
+        on = int(active_at_start[i][k])
+        if on < 0:
+            cell["before_start"] += 1
+        elif on != ARTIFACT_KINDS.index(kind) + 1:
+            cell["wrong_policy"] += 1
+    return out
+
+
+def policy_on_falls_markdown(by_method: dict) -> str:
+    lines = ["Falls on an artifact, and how many came with another policy than the artifact's "
+             "acting as the body came over its start (a missed or wrong detection), or before "
+             "the start was reached.", "",
+             "| method | " + " | ".join(f"{k}: falls / wrong policy / before start"
+                                       for k in ARTIFACT_KINDS) + " |",
+             "|---" * (len(ARTIFACT_KINDS) + 1) + "|"]
+    for m, d in by_method.items():
+        lines.append(f"| {m} | " + " | ".join(
+            f"{d[k]['falls']} / {d[k]['wrong_policy']} / {d[k]['before_start']}"
+            for k in ARTIFACT_KINDS) + " |")
+    return "\n".join(lines)
+
+
 def switch_outcomes(tracks, switch_ahead_m, progress_frac, fell, fail_kind,
                     detect_range_m: float | None = None) -> list[dict]:
     """One record per switch into an artifact's policy: {"kind", "prev" (the artifact before it, or

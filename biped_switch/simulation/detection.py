@@ -1,4 +1,6 @@
-"""The oracle terrain detector: which artifacts the robot has come within detection range of, and which one a fall is blamed on. Pure, jittable functions on arrays."""
+"""The oracle terrain detector (which artifacts the robot has come within detection range of, and
+which one a fall is blamed on) and the filter a learned detector's output passes. Pure, jittable
+functions on arrays."""
 
 from __future__ import annotations
 
@@ -32,3 +34,15 @@ def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: floa
     reached = detection_zone_entered(x, art_x0, art_kind, detect_range_m)
     i = jnp.maximum(jnp.sum(reached) - 1, 0)
     return jnp.where(jnp.any(reached) & (x <= art_x1[i] + after_m), art_kind[i], -1)
+
+
+def debounce_step(reported, cand, run, kind, steps: int):
+    """One control step of the learned detector's filter: a change of `kind` (per env, -1 none)
+    is reported once the new kind has been named `steps` steps in a row; a one-step misreading
+    never switches policies. (reported, candidate, run) in and out, int32 arrays."""
+    same = kind == reported
+    run = jnp.where(same, 0, jnp.where(kind == cand, run + 1, 1))
+    cand = jnp.where(same | (kind == cand), cand, kind)
+    flip = run >= steps
+    return (jnp.where(flip, cand, reported).astype(jnp.int32), cand.astype(jnp.int32),
+            jnp.where(flip, 0, run).astype(jnp.int32))

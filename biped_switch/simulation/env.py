@@ -15,7 +15,8 @@ laws) is the same code on both; "auto" picks mujoco on a CPU and mjx on an accel
 
 Observation = robot state (51) + heightmap (60 x 40, flattened row-major, rows run forward)
 [+ gait phase clock (sin, cos of 2 pi t / gait period, t from the end of the pause) when
-`phase_obs`] [+ detected artifact one-hot (3) when `detector_one_hot`]. Robot state layout (STATE_SLICES):
+`phase_obs`] [+ detected artifact one-hot (3) when `detector_one_hot`]: `env.obs_layout`, an
+`observation.ObsLayout` of named slices. Robot state layout (STATE_SLICES):
   0:12   joint positions [rad], order model.JOINT_NAMES (left then right: hip yaw, roll, pitch,
          knee, ankle pitch, roll)
   12:24  joint velocities [rad/s]
@@ -34,10 +35,10 @@ Initial states: `stand` starts in the standing keyframe and holds it with a PD c
 of states (the paper's RoA overlap); `random` starts from random joint angles with no pause.
 
 Reward per control step (weights in config.reward; the spirit of Tidd et al.'s guided-curriculum
-reward): progress * min(vx, v*) + speed * exp(-(vx - v*)^2 / 0.1) + alive + upright * cos(pitch)
-cos(roll) + height * exp(-(h - h_stand)^2 / 0.01) - lateral * (|y| + |yaw|) - torque * mean(a^2)
-- fall * [fell], where v* is the target speed (0 during the pause), vx the CoM x velocity and a the
-action (0 during the pause, when the PD hold acts instead).
+reward): progress * min(vx, v*) + speed * exp(-(vx - v*)^2 / speed_width) + alive + upright *
+cos(pitch) cos(roll) + height * exp(-(h - h_stand)^2 / height_width) - lateral * (|y| + |yaw|) -
+torque * mean(a^2) - fall * [fell], where v* is the target speed (0 during the pause), vx the CoM x
+velocity and a the action (0 during the pause, when the PD hold acts instead).
 Guided curriculum hooks (traced values in `state.info`, set at reset, kept across steps):
 `guide_scale` scales the scripted gait's joint PD torques (qfrc_applied) and the CoM-steadying
 wrench on the pelvis (xfrc_applied), see gait.py; `push_scale` scales random horizontal pushes of
@@ -65,20 +66,17 @@ from biped_switch.config import (default_curriculum_config, default_env_config, 
 from biped_switch.simulation.heightmap import cell_offsets, heightmap, terrain_height
 from biped_switch.names import BACKEND_CHOICES, BACKENDS, INITS  # noqa: F401  (re-exported)
 from biped_switch.simulation.detection import blame_kind, detection_zone_entered, kinds_met  # noqa: F401
-from biped_switch.simulation.observation import STATE_SIZE, STATE_SLICES  # noqa: F401  (re-exported)
+from biped_switch.simulation.observation import STATE_SIZE, STATE_SLICES, layout  # noqa: F401  (re-exported)
 from biped_switch.simulation.physics import _euler, _quat_to_mat, resolve_backend, sole_contacts  # noqa: F401
 
 BACKEND_HELP = "physics backend (auto: mujoco on a CPU, mjx on an accelerator)"
 ACTIONS = ("torque", "pd")
 PUSH_MAGNITUDES = ("uniform", "max")  # curriculum.push_magnitude: how each push force is drawn
-HOLD_KP_PER_GEAR, HOLD_KD_RATIO = 3.0, 0.05  # standing PD hold: e.g. knee 750 Nm/rad, 37.5 Nm s/rad
 # info keys that Brax's training wrappers (EpisodeWrapper, AutoResetWrapper) own: the env must not
 # write them (an env counter named "steps" doubled Brax's and halved every training episode).
 BRAX_WRAPPER_KEYS = frozenset({"steps", "truncation", "first_pipeline_state", "first_obs",
                                "episode_metrics", "episode_done"})
 REWARD_TERMS = ("progress", "speed", "alive", "upright", "height", "lateral", "torque", "fall")
-MAX_QVEL = 200.0  # [m/s, rad/s] beyond any motion of this robot: the simulation has diverged
-FALL_Z_M = -0.2  # CoM below the track surface (z = 0 on flats): fell into a gap or off the side
 
 
 class BipedEnv(Env):
@@ -119,6 +117,7 @@ class BipedEnv(Env):
             "origin": bank.x_origin_m.astype(np.float32), "codes": bank.artifact_codes,
             "spans": bank.artifact_segments, "after": bank.finish_after_m.astype(np.float32)})
         self._offsets = jnp.asarray(cell_offsets(self.cfg.heightmap, self.cfg.shape), jnp.float32)
+        self.obs_layout = layout(self.cfg)
         b = self.biped
         if self._backend == "mjx":
             self._data0 = mjx.make_data(b.mj_model, impl="jax")
@@ -152,12 +151,11 @@ class BipedEnv(Env):
     def policy_observation_size(self) -> int:
         """The leading part of the observation that behaviour policies read: state, heightmap and
         the phase clock (the detector one-hot, last, is the DQN selector's)."""
-        sh = self.cfg.shape
-        return STATE_SIZE + sh.grid_forward * sh.grid_lateral + (2 if self.cfg.phase_obs else 0)
+        return self.obs_layout.policy_size
 
     @property
     def observation_size(self) -> int:
-        return self.policy_observation_size + (3 if self.cfg.detector_one_hot else 0)
+        return self.obs_layout.size
 
     @property
     def action_size(self) -> int:
@@ -193,7 +191,8 @@ class BipedEnv(Env):
         paused), "q_ref" (..., 12) the scripted gait's joint targets [rad]."""
         c = self._np if xp is np else {"stand_q": self._stand_q, "gear": self._gear}
         gear, stand_q = c["gear"], c["stand_q"]
-        hold = gait.pd_torque(q, qd, stand_q, HOLD_KP_PER_GEAR, HOLD_KD_RATIO, gear, xp) / gear
+        hold = gait.pd_torque(q, qd, stand_q, self.cfg.hold_kp_per_gear, self.cfg.hold_kd_ratio,
+                              gear, xp) / gear
         if self.cfg.action == "pd":
             base = inputs["q_ref"] if self.cfg.pd_offset == "gait" else stand_q
             target = base + inputs["action"] * self.cfg.action_scale_rad
@@ -236,11 +235,12 @@ class BipedEnv(Env):
             q = self._stand_q + jax.random.uniform(k_q, (12,), minval=-1.0, maxval=1.0) * half
             qpos = qpos.at[b.qpos_adr].set(jnp.clip(q, self._lo, self._hi))
         data = self._forward(track_id, difficulty, boxes, qpos)
-        # Lift or lower the robot so its lowest sole sits 1 mm above the ground beneath it.
+        # Lift or lower the robot so its lowest sole sits reset_clearance_m above the ground.
         soles = data.geom_xpos[b.sole_geoms.reshape(-1)]
         ground = terrain_height(boxes, soles[:, :2])
         clearance = jnp.min(soles[:, 2] - self._sole_radius_m - ground)
-        data = self._forward(track_id, difficulty, boxes, qpos.at[2].add(1e-3 - clearance))
+        data = self._forward(track_id, difficulty, boxes,
+                             qpos.at[2].add(self.cfg.reset_clearance_m - clearance))
         contact = self._contacts9(data, boxes)
         info = {
             "rng": rng,
@@ -294,7 +294,7 @@ class BipedEnv(Env):
         data = self._physics_step(state.pipeline_state, info, pelvis_wrench, inputs)
         # A diverged simulation ends its episode as a fall at its last finite state, so that no
         # NaN reaches the observation, the reward or a learner's statistics.
-        diverged = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.abs(data.qvel) < MAX_QVEL))
+        diverged = ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.abs(data.qvel) < self.cfg.max_qvel))
         data = jax.tree.map(lambda new, old: jnp.where(diverged, old, new), data,
                             state.pipeline_state)
         contact = self._contacts9(data, info["boxes"])
@@ -384,13 +384,14 @@ class BipedEnv(Env):
             feat["ang_vel"], feat["pitch"][None], feat["roll"][None],
             feat["com_height"][None]]).astype(jnp.float32)
         feat["detect"] = self.detect(info, feat["com"][0])
+        lay = self.obs_layout  # the parts in its order: state | heightmap | phase | one-hot
         parts = [state, hmap.reshape(-1).astype(jnp.float32)]
-        if self.cfg.phase_obs:
+        if lay.n_phase:
             walk_t = jnp.maximum(info["time_s"] - self._pause_s, 0.0)
             angle = 2 * jnp.pi * walk_t / self.gait_cfg.period_s
             parts.append(jnp.stack([jnp.sin(angle), jnp.cos(angle)]).astype(jnp.float32))
-        if self.cfg.detector_one_hot:
-            parts.append(jax.nn.one_hot(feat["detect"]["kind"], len(terrain.ARTIFACT_KINDS)))
+        if lay.n_one_hot:
+            parts.append(jax.nn.one_hot(feat["detect"]["kind"], lay.n_one_hot))
         return jnp.concatenate(parts), feat
 
     def switch_inputs(self, state: State) -> dict:
@@ -421,7 +422,7 @@ class BipedEnv(Env):
         world, or the simulation diverged."""
         c = self.cfg
         return ((feat["com_height"] < c.fall_height_m) | (jnp.abs(feat["pitch"]) > c.fall_tilt_rad)
-                | (jnp.abs(feat["roll"]) > c.fall_tilt_rad) | (feat["com"][2] < FALL_Z_M)
+                | (jnp.abs(feat["roll"]) > c.fall_tilt_rad) | (feat["com"][2] < c.fall_z_m)
                 | diverged)
 
     def _reward_terms(self, feat, ctrl, fell, paused) -> dict:
@@ -431,10 +432,11 @@ class BipedEnv(Env):
         vx = feat["lin_vel"][0]
         terms = {
             "progress": w.progress * jnp.minimum(vx, target),
-            "speed": w.speed * jnp.exp(-((vx - target) ** 2) / 0.1),
+            "speed": w.speed * jnp.exp(-((vx - target) ** 2) / w.speed_width),
             "alive": w.alive * jnp.ones_like(vx),
             "upright": w.upright * jnp.cos(feat["pitch"]) * jnp.cos(feat["roll"]),
-            "height": w.height * jnp.exp(-((feat["com_height"] - self._h_stand) ** 2) / 0.01),
+            "height": w.height * jnp.exp(-((feat["com_height"] - self._h_stand) ** 2)
+                                         / w.height_width),
             "lateral": -w.lateral * (jnp.abs(feat["com"][1]) + jnp.abs(feat["yaw"])),
             "torque": -w.torque * jnp.mean(jnp.where(paused, 0.0, ctrl) ** 2),  # policy's only
             "fall": -w.fall * jnp.asarray(fell, jnp.float32),

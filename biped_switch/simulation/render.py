@@ -36,7 +36,7 @@ def record(env, act, seconds: float, seed: int = 0, track_id: int = 0, reset_key
     episode loop (`rollout.run_episodes`) on `batch` copies of the episode, and the first is
     drawn: the policy's matmuls round differently at another batch size, and a trajectory is
     chaotic enough that a track Table I (batch 100) fell on can succeed in a lone rollout, so a
-    replay of a Table I trial runs at Table I's batch (measured, session 11: stairs track
+    replay of a Table I trial runs at Table I's batch (measured: stairs track
     10,018 fell at 11.2 m in every copy at batch 100, and reached the finish at batch 1 and 4)."""
     from biped_switch.simulation.rollout import reset_by_track, run_episodes
 

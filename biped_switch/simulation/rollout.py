@@ -65,8 +65,9 @@ def reset_by_track(env, keys: jax.Array, track_ids: jax.Array | None = None, **r
     return jax.vmap(lambda k, i: env.reset(k, track_id=i, **reset_args))(keys, track_ids)
 
 
-def _where(mask, new, old):
-    """Per-episode select over a batched pytree (`mask` (B,) bool)."""
+def tree_where(mask, new, old):
+    """Per-episode select over batched pytrees: `new` where `mask` (B,) is true, else `old` (every
+    leaf has the leading batch axis B)."""
     return jax.tree.map(
         lambda n, o: jnp.where(mask.reshape((-1,) + (1,) * (jnp.ndim(n) - 1)), n, o), new, old)
 
@@ -97,10 +98,10 @@ def run_episodes(env, state, horizon: int, act: ActFn, carry: Any = None, *,
             if more is not None:
                 end = end | more
         rec = None if trace is None else trace(ucarry, aux, state, nxt, live)
-        metrics = _where(live, nxt.metrics, metrics)
+        metrics = tree_where(live, nxt.metrics, metrics)
         length = length + live
         ended = jnp.maximum(ended, (end & live).astype(jnp.float32))
-        state = _where(live, nxt, state) if freeze_state else nxt
+        state = tree_where(live, nxt, state) if freeze_state else nxt
         return (state, ucarry, metrics, length, ended, t + 1), rec
 
     zeros = jnp.zeros(n)

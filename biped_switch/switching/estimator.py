@@ -11,8 +11,9 @@ to 50/50 in both. The switcher calls `predict(params, obs)` on the env observati
 once the output passes a threshold (0.85 in the paper).
 
 Params are a dict {"net": flax variables, "mean": (2451,), "std": (2451,)}: the input normalisation
-statistics (of the training split) travel with the weights, and `predict` reads the layer sizes off
-the weight shapes, so a checkpoint alone is enough at run time. The three estimators of one init
+statistics (of the training split) travel with the weights, and `predict` reads the input size and
+the layer sizes off their shapes, so a checkpoint alone is enough at run time. The input is the
+observation's `estimator` columns (`ObsLayout`: robot state, then heightmap). The three estimators of one init
 mode have equal sizes; `load_estimator_set` stacks them along a leading axis for `jax.vmap`:
 
     params, metas = load_estimator_set("stand")             # leaves (3, ...)
@@ -22,8 +23,8 @@ Differences from the paper (documented choices):
 - The split is by switch sample: the 5 near-identical data points of one switch (t-2..t+2) always
   land on the same side, so validation never sees a near-copy of a training point. The paper only
   says "90% / 10%"; a point-wise split would let validation accuracy flatter the estimator.
-- Inputs are standardised per column with the training split's mean and std (floored at
-  `STD_FLOOR`), stored with the params. The paper does not say how inputs were scaled.
+- Inputs are standardised per column with the training split's mean and std (floored at the
+  config's `std_floor`), stored with the params. The paper does not say how inputs were scaled.
 - The 50/50 balance subsamples the majority label (at the point level) in each split.
 """
 
@@ -46,20 +47,29 @@ from flax.training import orbax_utils
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_env_config, default_estimator_config
-from biped_switch.simulation.env import STATE_SIZE
-from biped_switch.simulation.terrain import ARTIFACT_KINDS
+from biped_switch.learning.networks import encode, swish_mlp
+from biped_switch.learning.normalizer import column_stats, standardize
+from biped_switch.names import ARTIFACT_KINDS
+from biped_switch.simulation.observation import STATE_SIZE, layout
 
-HM_SIZE = default_env_config().shape.grid_forward * default_env_config().shape.grid_lateral  # 2400
-IN_SIZE = STATE_SIZE + HM_SIZE  # 2451: the leading columns of the observation that predict reads
 TARGETS = ARTIFACT_KINDS  # one estimator per artifact kind: jumps, gaps, stairs
-STD_FLOOR = 1e-2  # input columns with a smaller std (e.g. constant heightmap cells) are scaled by this
-EVAL_CHUNK = 4096  # validation points per forward pass
+
+
+def __getattr__(name):
+    """HM_SIZE and IN_SIZE: the heightmap and input widths of the default env config, for callers
+    that assume it (the estimator command's meta, the benchmark); resolved when asked for. The
+    estimator itself reads its sizes from its data and params."""
+    if name in ("HM_SIZE", "IN_SIZE"):
+        lay = layout(default_env_config())
+        return lay.hm_size if name == "HM_SIZE" else lay.estimator.stop
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class EstimatorNet(linen.Module):
     """Heightmap -> MLP `hm_hidden` (swish), joined with the state -> MLP `hidden` (swish) -> Dense(1)
-    -> sigmoid. Input: (..., state_size + hm_size) normalised columns; output: (...,) probabilities.
-    Layers are named hm_<i>, mlp_<i> and out, so the sizes can be read back from the params."""
+    -> sigmoid (`networks.encode`, `networks.swish_mlp`). Input: (..., state_size + hm_size)
+    normalised columns; output: (...,) probabilities. Layers are named hm_<i>, mlp_<i> and out, so
+    the sizes can be read back from the params."""
 
     hm_hidden: Sequence[int] = (64,)
     hidden: Sequence[int] = (128, 64)
@@ -67,12 +77,8 @@ class EstimatorNet(linen.Module):
 
     @linen.compact
     def __call__(self, x):
-        s, h = x[..., : self.state_size], x[..., self.state_size:]
-        for i, n in enumerate(self.hm_hidden):
-            h = linen.swish(linen.Dense(n, name=f"hm_{i}")(h))
-        z = jnp.concatenate([s, h], axis=-1)
-        for i, n in enumerate(self.hidden):
-            z = linen.swish(linen.Dense(n, name=f"mlp_{i}")(z))
+        z = encode(x, self.state_size, x.shape[-1] - self.state_size, self.hm_hidden, prefix="hm")
+        z = swish_mlp(z, self.hidden, prefix="mlp")
         return jax.nn.sigmoid(linen.Dense(1, name="out")(z)[..., 0])
 
 
@@ -90,23 +96,27 @@ def module_from_params(net_variables) -> EstimatorNet:
     return EstimatorNet(hm_hidden=sizes("hm"), hidden=sizes("mlp"))
 
 
-def init_params(cfg, key: jax.Array, mean=None, std=None) -> dict:
-    """Fresh params {"net", "mean", "std"} for sizes cfg.hm_hidden / cfg.hidden (mean 0, std 1 unless
-    given)."""
+def init_params(cfg, key: jax.Array, mean=None, std=None, in_size: int | None = None) -> dict:
+    """Fresh params {"net", "mean", "std"} for sizes cfg.hm_hidden / cfg.hidden on `in_size` input
+    columns (default: those of `mean`; mean 0, std 1 unless given)."""
+    in_size = len(mean) if in_size is None else int(in_size)
     net = EstimatorNet(hm_hidden=tuple(cfg.hm_hidden), hidden=tuple(cfg.hidden))
-    mean = np.zeros(IN_SIZE, np.float32) if mean is None else mean
-    std = np.ones(IN_SIZE, np.float32) if std is None else std
-    return {"net": net.init(key, jnp.zeros((1, IN_SIZE))), "mean": jnp.asarray(mean, jnp.float32),
+    mean = np.zeros(in_size, np.float32) if mean is None else mean
+    std = np.ones(in_size, np.float32) if std is None else std
+    return {"net": net.init(key, jnp.zeros((1, in_size))), "mean": jnp.asarray(mean, jnp.float32),
             "std": jnp.asarray(std, jnp.float32)}
 
 
 def predict(params: dict, obs: jax.Array) -> jax.Array:
     """Estimated probability (...,) that switching now succeeds. Pure and jittable.
 
-    `obs` (..., >= 2451): robot state (51) then heightmap (2400); further columns (e.g. the detector
-    one-hot) are ignored. Sizes come from the param shapes, so the params of several estimators
-    stacked along a leading axis go through `jax.vmap(predict, in_axes=(0, None))`."""
-    x = (jnp.asarray(obs)[..., :IN_SIZE].astype(jnp.float32) - params["mean"]) / params["std"]
+    `obs` (..., >= 2451): robot state (51) then heightmap (2400), the observation's `estimator`
+    columns; further columns (the phase clock, the detector one-hot) are ignored. Sizes come from
+    the param shapes, so the params of several estimators stacked along a leading axis go through
+    `jax.vmap(predict, in_axes=(0, None))`."""
+    in_size = params["mean"].shape[-1]
+    x = standardize(jnp.asarray(obs)[..., :in_size].astype(jnp.float32), params["mean"],
+                    params["std"])
     return module_from_params(params["net"]).apply(params["net"], x)
 
 
@@ -189,7 +199,8 @@ def load_data(path) -> dict:
 
 
 def _loss(net: EstimatorNet, variables, mean, std, state, hm, y):
-    x = (jnp.concatenate([state.astype(jnp.float32), hm.astype(jnp.float32)], -1) - mean) / std
+    x = standardize(jnp.concatenate([state.astype(jnp.float32), hm.astype(jnp.float32)], -1), mean,
+                    std)
     p = net.apply(variables, x)
     return jnp.mean((p - y) ** 2), p
 
@@ -210,9 +221,10 @@ def train_estimator(data: dict, cfg=None, rng_seed: int | None = None, print_fn=
     seed = int(cfg.seed if rng_seed is None else rng_seed)
     state = np.asarray(data["state"], np.float32)
     hm = np.asarray(data["heightmap"])
-    if state.shape[-1] != STATE_SIZE or hm.shape[-1] != HM_SIZE or len(state) != len(hm):
-        raise ValueError(f"expected state (N, {STATE_SIZE}) and heightmap (N, {HM_SIZE}), got "
+    if state.ndim != 2 or hm.ndim != 2 or state.shape[-1] != STATE_SIZE or len(state) != len(hm):
+        raise ValueError(f"expected state (N, {STATE_SIZE}) and heightmap (N, rows * cols), got "
                          f"{state.shape} and {hm.shape}")
+    in_size = STATE_SIZE + hm.shape[-1]
     if not np.issubdtype(hm.dtype, np.floating):
         hm = hm.astype(np.float32)
     labels = np.asarray(data["label"]).astype(np.int32)
@@ -220,15 +232,13 @@ def train_estimator(data: dict, cfg=None, rng_seed: int | None = None, print_fn=
     tr, va = balanced_split(labels, groups, float(cfg.val_frac), np.random.default_rng(seed))
 
     # Normalisation statistics of the training split (float64 accumulation).
-    x_tr = np.concatenate([state[tr], hm[tr].astype(np.float32)], -1)
-    mean = x_tr.mean(0, dtype=np.float64).astype(np.float32)
-    std = np.maximum(x_tr.std(0, dtype=np.float64), STD_FLOOR).astype(np.float32)
-    del x_tr
+    mean, std = column_stats(np.concatenate([state[tr], hm[tr].astype(np.float32)], -1),
+                             float(cfg.std_floor))
 
     n_tr, n_va = len(tr), len(va)
     bs = int(min(cfg.batch_size, n_tr))
     n_batches = n_tr // bs
-    n_chunks = -(-n_va // min(EVAL_CHUNK, n_va))
+    n_chunks = -(-n_va // min(int(cfg.eval_chunk), n_va))
     chunk = -(-n_va // n_chunks)
     pad = n_chunks * chunk - n_va
     va_pad = np.concatenate([va, np.full(pad, va[0])])
@@ -241,7 +251,7 @@ def train_estimator(data: dict, cfg=None, rng_seed: int | None = None, print_fn=
 
     net = EstimatorNet(hm_hidden=tuple(cfg.hm_hidden), hidden=tuple(cfg.hidden))
     key, init_key = jax.random.split(jax.random.PRNGKey(seed))
-    variables = net.init(init_key, jnp.zeros((1, IN_SIZE)))
+    variables = net.init(init_key, jnp.zeros((1, in_size)))
     opt = optax.adam(float(cfg.learning_rate))
     opt_state = opt.init(variables)
     mean_d, std_d = jnp.asarray(mean), jnp.asarray(std)

@@ -31,6 +31,7 @@ import numpy as np
 
 from biped_switch.learning import policies as pol
 from biped_switch.config import default_switching_config
+from biped_switch.simulation.detection import debounce_step
 from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
 
@@ -90,12 +91,34 @@ class SwitchState(NamedTuple):
     random_m: jax.Array  # random method: this artifact's switch distance [m]
     n_switches: jax.Array  # int32
     est_run: jax.Array  # int32: control steps in a row the detected target's E >= threshold
+    det_seen: jax.Array = np.int32(0)  # 1 while the learned detector names an artifact
+    det_count: jax.Array = np.int32(0)  # artifacts the learned detector has named so far
+    det_kind: jax.Array = np.int32(-1)  # the learned detector's kind as reported (debounced)
+    det_cand: jax.Array = np.int32(-1)  # a new kind it names, not yet reported
+    det_run: jax.Array = np.int32(0)  # control steps in a row it has named det_cand
 
 
 def init_state(n_envs: int) -> SwitchState:
-    return SwitchState(jnp.zeros(n_envs, jnp.int32), jnp.full(n_envs, -1, jnp.int32),
-                       jnp.zeros(n_envs, jnp.float32), jnp.zeros(n_envs, jnp.int32),
-                       jnp.zeros(n_envs, jnp.int32))
+    zi, mi = jnp.zeros(n_envs, jnp.int32), jnp.full(n_envs, -1, jnp.int32)
+    return SwitchState(zi, mi, jnp.zeros(n_envs, jnp.float32), zi, zi, zi, zi, mi, mi, zi)
+
+
+def debounced(ss: SwitchState, kind: jax.Array, steps: int) -> tuple[SwitchState, jax.Array]:
+    """The learned detector's kind with each change held back until the new kind has been named
+    `steps` control steps in a row: a one-step misreading never switches policies. (new state,
+    reported kind)."""
+    rep, cand, run = debounce_step(ss.det_kind, ss.det_cand, ss.det_run, kind, steps)
+    return ss._replace(det_kind=rep, det_cand=cand, det_run=run), rep
+
+
+def learned_index(ss: SwitchState, kind: jax.Array) -> tuple[SwitchState, jax.Array]:
+    """The oracle names artifacts by their slot on the track; a learned detector sees no track,
+    so an artifact is a new one whenever the detector starts naming something after naming
+    nothing (its onsets, counted). (new state, index: -1 while nothing is named)."""
+    seen = kind >= 0
+    count = ss.det_count + (seen & (ss.det_seen == 0)).astype(jnp.int32)
+    return (ss._replace(det_seen=seen.astype(jnp.int32), det_count=count),
+            jnp.where(seen, count, -1))
 
 
 # ----------------------------------------------------------------------- CoM over feet
@@ -168,7 +191,7 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
         est_run >= rules.persist_steps,
     ])[rules.method]
     switch = pending & (fire | (det_dist_m <= rules.force_m))
-    new = SwitchState(active=jnp.where(switch, target, ss.active).astype(jnp.int32),
+    new = ss._replace(active=jnp.where(switch, target, ss.active).astype(jnp.int32),
                       art_index=jnp.where(seen, det_index, ss.art_index).astype(jnp.int32),
                       random_m=random_m, n_switches=ss.n_switches + switch.astype(jnp.int32),
                       est_run=est_run)
@@ -176,9 +199,16 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
 
 
 # ----------------------------------------------------------------------- multi-policy rollout
-def controller_inputs(env, state, est_apply, est_params, rules: Rules) -> dict:
-    """Batched rule inputs for a batch of env states (detection, CoM over feet, estimators)."""
+def controller_inputs(env, state, est_apply, est_params, rules: Rules, det_apply=None,
+                      det_params=None) -> dict:
+    """Batched rule inputs for a batch of env states (detection, CoM over feet, estimators).
+    "detect" is what the rules act on: the oracle's, or with `det_apply` (switching.detector's
+    `detect_fn`) the learned detector's on the observation; "truth" is always the oracle's (for
+    the record of where each switch happened)."""
     si = jax.vmap(env.switch_inputs)(state)
+    si["truth"] = si["detect"]
+    if det_apply is not None:
+        si["detect"] = det_apply(det_params, state.obs, si["yaw"])
     com_ok = jax.vmap(com_over_feet, in_axes=(0, 0, 0, 0, None, None))(
         si["body_com"], si["soles"], si["contact"], si["yaw"], rules.feet_tol_m, rules.margin_m)
     if est_apply is None:
@@ -188,15 +218,23 @@ def controller_inputs(env, state, est_apply, est_params, rules: Rules) -> dict:
     return {**si, "com_ok": com_ok, "est_probs": probs}
 
 
-def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules: Rules):
+def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
+                    det_apply=None, det_params=None):
     """(ss, state, live, u01) -> (action, ss, controller inputs, switched now): one control step
     of the switching controller for a batch; switches of ended episodes are not counted."""
     def act(ss, state, live, u01):
-        ci = controller_inputs(env, state, est_apply, est_params, rules)
+        ci = controller_inputs(env, state, est_apply, est_params, rules, det_apply, det_params)
         det = ci["detect"]
+        if det_apply is None:
+            index = det["index"]
+        else:
+            ss, kind = debounced(ss, det["kind"], getattr(det_apply, "debounce_steps", 1))
+            det = ci["detect"] = {**det, "kind": kind,
+                                  "dist_m": jnp.where(kind >= 0, det["dist_m"], jnp.inf)}
+            ss, index = learned_index(ss, kind)
         n_before = ss.n_switches
         ss, switched = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
-            ss, det["kind"], det["index"], det["dist_m"], ci["com_ok"], ci["est_probs"], u01, rules)
+            ss, det["kind"], index, det["dist_m"], ci["com_ok"], ci["est_probs"], u01, rules)
         ss = ss._replace(n_switches=jnp.where(live, ss.n_switches, n_before))
         action = pol.select(pol.all_actions(suite_apply, suite_params, state.obs), ss.active)
         return action, ss, ci, switched
@@ -206,7 +244,7 @@ def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules
 
 def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
                   rng: jax.Array, n_envs: int, horizon: int, track_ids=None,
-                  chunk: int = 50, guide_scale=0.0) -> dict:
+                  chunk: int = 50, guide_scale=0.0, det_apply=None, det_params=None) -> dict:
     """Episodes on the env's tracks, each starting with the walk policy and switching by `rules`.
 
     Runs in chunks of `chunk` steps and stops early once every episode has ended
@@ -217,38 +255,51 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
     Also `switch_ahead_m` (n_envs, A): for each of the track's A artifact slots (sorted by x, as
     the detector indexes them), the distance [m] from the CoM to its start when the controller
     switched into its policy; NaN where it never did. Which rule switches where, and what that
-    cost (`table2.switch_distances`)."""
+    cost (`table2.switch_distances`). `active_at_start` (n_envs, A): the policy index acting when
+    the CoM came over each artifact's start (-1: never reached), so a fall with the wrong policy
+    on an artifact shows a missed or wrong detection. `det_apply`, `det_params`: a learned detector in place of
+    the oracle (switching.detector); the switch distances stay the oracle's measure."""
     reset_keys, k_run = episode_keys(rng, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
     state = reset_by_track(env, reset_keys, track_ids,
                            guide_scale=guide_scale)
-    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules)
+    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules,
+                                 det_apply, det_params)
     slots = jnp.arange(state.info["art_x0"].shape[-1])
 
     def act(c, state, live, _):
-        ss, key, ahead = c
+        ss, key, ahead, on = c
         key, k_u = jax.random.split(key)  # a carried key, split per step (the random rule's draws)
         action, ss, ci, switched = switch_act(ss, state, live, jax.random.uniform(k_u, (n_envs,)))
-        det = ci["detect"]
-        hit = (switched & live)[:, None] & (slots[None, :] == det["index"][:, None])
-        ahead = jnp.where(hit, det["dist_m"][:, None], ahead)
-        return action, (ss, key, ahead), None
+        truth = ci["truth"]
+        at = slots[None, :] == truth["index"][:, None]
+        hit = (switched & live)[:, None] & at
+        ahead = jnp.where(hit, truth["dist_m"][:, None], ahead)
+        # the policy acting as the CoM comes over the artifact's start (the oracle's measure)
+        first = (live & (truth["dist_m"] <= 0.0))[:, None] & at & (on < 0)
+        on = jnp.where(first, ss.active[:, None], on)
+        return action, (ss, key, ahead, on), None
 
     ahead0 = jnp.full((n_envs, slots.shape[0]), jnp.nan, jnp.float32)
-    ep = run_episodes(env, state, horizon, act, (init_state(n_envs), k_run, ahead0), chunk=chunk)
+    on0 = jnp.full((n_envs, slots.shape[0]), -1, jnp.int32)
+    ep = run_episodes(env, state, horizon, act, (init_state(n_envs), k_run, ahead0, on0),
+                      chunk=chunk)
     return {**ep.metrics, "length": ep.length, "done": ep.done,
-            "n_switches": ep.carry[0].n_switches, "switch_ahead_m": ep.carry[2]}
+            "n_switches": ep.carry[0].n_switches, "switch_ahead_m": ep.carry[2],
+            "active_at_start": ep.carry[3]}
 
 
 def trace_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
-                  rng: jax.Array, track_id, horizon: int, guide_scale=0.0) -> dict:
+                  rng: jax.Array, track_id, horizon: int, guide_scale=0.0, det_apply=None,
+                  det_params=None) -> dict:
     """One episode with a per-step record (for the paper's Fig. 5): time, CoM, soles, contacts,
     detection, every estimator's output, CoM-over-feet, active policy, switch events. The episode
     is frozen (its whole state) once it ends and the record runs to the horizon (`ended` = 1)."""
     state = reset_by_track(env, rng[None], jnp.reshape(jnp.asarray(track_id), (1,)),
                            guide_scale=guide_scale)
-    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules)
+    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules,
+                                 det_apply, det_params)
 
     def act(ss, state, live, key):
         action, ss, ci, switched = switch_act(ss, state, live, jax.random.uniform(key, (1,)))

@@ -44,12 +44,23 @@ import numpy as np
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.simulation import terrain
-from biped_switch.config import SWEEP_TRACK_SEED, default_terrain_config
-from biped_switch.switching.estimator import HM_SIZE, sweep_name
+from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_terrain_config
+from biped_switch.switching.estimator import sweep_name
+from biped_switch.simulation.observation import layout
 from biped_switch.simulation.rollout import episode_keys, over_devices, reset_by_track, run_episodes
 
-N_WINDOW = 5
-WINDOW_BEFORE = 2  # points before the switch step in the window (t-2, t-1)
+# the sweep config's window as a length (evaluation/multi.py's persistence rule reads it)
+N_WINDOW = len(default_sweep_config().window)
+
+
+def window_span(window) -> int:
+    """The points before the switch step of a window of consecutive step offsets around it (the
+    sweep config's `window`, (-2, -1, 0, 1, 2): 2)."""
+    w = tuple(int(o) for o in window)
+    before = -w[0]
+    if before < 0 or w != tuple(range(-before, len(w) - before)) or len(w) - before < 1:
+        raise ValueError(f"a sweep window is consecutive step offsets from <= 0 to >= 0, got {w}")
+    return before
 
 
 # ----------------------------------------------------------------------- labelling (pure)
@@ -123,48 +134,57 @@ def label_step(lab: Labelling, live, switched_before, switched, contact, contact
 
 
 class Window(NamedTuple):
-    """Rolling record of observations around a switch, per env."""
+    """Rolling record of observations around a switch, per env: a window of `before` points
+    before the switch step, the switch step and the points after it (the sweep config's
+    `window`; the array shapes carry the sizes)."""
 
-    ring: jax.Array  # (WINDOW_BEFORE + 1, O): the last three observations, oldest first
-    window: jax.Array  # (N_WINDOW, O)
-    n_after: jax.Array  # int32: observations after the switch written so far (0..2)
+    ring: jax.Array  # (before + 1, O): the last observations up to now, oldest first
+    window: jax.Array  # (len(window), O)
+    n_after: jax.Array  # int32: observations after the switch written so far
 
 
-def window_init(obs) -> Window:
-    ring = jnp.broadcast_to(obs, (WINDOW_BEFORE + 1,) + obs.shape)
-    return Window(ring, jnp.zeros((N_WINDOW,) + obs.shape, obs.dtype), jnp.zeros((), jnp.int32))
+def window_init(obs, window=None) -> Window:
+    """An empty record for step offsets `window` (default: the sweep config's)."""
+    window = default_sweep_config().window if window is None else window
+    before = window_span(window)
+    ring = jnp.broadcast_to(obs, (before + 1,) + obs.shape)
+    return Window(ring, jnp.zeros((len(window),) + obs.shape, obs.dtype), jnp.zeros((), jnp.int32))
 
 
 def window_update(w: Window, obs, switched_now, switched_before) -> Window:
     """`obs` is the observation the (possibly new) policy acts on at this step.
 
-    At the switch step t the ring (t-2, t-1, t) fills the first three slots; each of the next two
-    steps writes one slot. An episode that ends first repeats its last observation."""
+    At the switch step t the ring (t-2, t-1, t with the default window) fills the first slots;
+    each of the next steps writes one slot. An episode that ends first repeats its last
+    observation."""
+    before, n = w.ring.shape[0] - 1, w.window.shape[0]
     ring = jnp.concatenate([w.ring[1:], obs[None]])
-    window = jnp.where(switched_now, w.window.at[: WINDOW_BEFORE + 1].set(ring), w.window)
-    write = switched_before & (w.n_after < N_WINDOW - WINDOW_BEFORE - 1)
-    slot = WINDOW_BEFORE + 1 + w.n_after
-    window = jnp.where(write, window.at[jnp.minimum(slot, N_WINDOW - 1)].set(obs), window)
+    window = jnp.where(switched_now, w.window.at[: before + 1].set(ring), w.window)
+    write = switched_before & (w.n_after < n - before - 1)
+    slot = before + 1 + w.n_after
+    window = jnp.where(write, window.at[jnp.minimum(slot, n - 1)].set(obs), window)
     return Window(ring, window, w.n_after + write.astype(jnp.int32))
 
 
 def window_fill(w: Window) -> jax.Array:
     """The window with missing after-switch slots (episode ended) filled by the last written."""
-    idx = jnp.minimum(jnp.arange(N_WINDOW), WINDOW_BEFORE + w.n_after)
+    before, n = w.ring.shape[0] - 1, w.window.shape[0]
+    idx = jnp.minimum(jnp.arange(n), before + w.n_after)
     return w.window[idx]
 
 
 # ----------------------------------------------------------------------- the rollout
 def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, switch_max_m: float,
                   steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0,
-                  end_offset_m: float = 0.0, target_index=None) -> dict:
+                  end_offset_m: float = 0.0, target_index=None, window=None) -> dict:
     """A batch of switch episodes (one env per track id), switching before artifact
     `target_index` (B,) of each track (default 0: the first; context sweeps switch before the 2nd).
 
     `sources` (B,) policy index acting before the switch, `target` the index switched to;
     `guide_scale` > 0 turns the scripted gait's guide forces on and `end_offset_m` moves the line
     past which steps count from the artifact's end (tests only: the guided robot never crosses an
-    artifact, so only a line moved back gives it labels of 1)."""
+    artifact, so only a line moved back gives it labels of 1). `window`: the step offsets of the
+    observations recorded around the switch (default: the sweep config's)."""
     n = track_ids.shape[0]
     reset_keys, k_u = episode_keys(rng, n)
     state = reset_by_track(env, reset_keys, track_ids, guide_scale=guide_scale)
@@ -173,7 +193,7 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
             else jnp.asarray(target_index, jnp.int32))
     carry = {"active": sources.astype(jnp.int32), "switched": jnp.zeros(n, bool),
              "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
-             "win": jax.vmap(window_init)(state.obs)}
+             "win": jax.vmap(lambda o: window_init(o, window))(state.obs)}
     label_steps = jax.vmap(functools.partial(label_step, steps_past=steps_past))
 
     def act(c, state, live, _):
@@ -261,30 +281,30 @@ def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_i
     def one(params, rng, ids, src):
         return sweep_rollout(env, apply, params, rng, ids, src, tgt, cfg.switch_max_m,
                              cfg.steps_past, horizon, guide_scale=guide_scale,
-                             target_index=None if tidx_of is None else tidx_of[ids])
+                             target_index=None if tidx_of is None else tidx_of[ids],
+                             window=tuple(cfg.window))
 
     return over_devices(one, n_shared=1)
 
 
 # ----------------------------------------------------------------------- the sweep driver
-def _split(window: np.ndarray):
-    """(robot state, heightmap) of observations: exactly the estimator's inputs (51 + 2400), without
-    the phase clock or any other columns the env appends after the heightmap."""
-    s = env_lib.STATE_SIZE
-    state = window[..., :s].astype(np.float32)
-    hm = window[..., s:s + HM_SIZE].astype(np.float16)
+def _split(window: np.ndarray, lay):
+    """(robot state, heightmap) of observations: exactly the estimator's inputs (the `ObsLayout`
+    `lay`'s state and heightmap), without the phase clock or the one-hot after them."""
+    state = window[..., lay.state].astype(np.float32)
+    hm = window[..., lay.heightmap].astype(np.float16)
     return state, hm
 
 
-def _part(out: dict, first_sample: int, window) -> tuple[dict, int]:
-    """A batch's valid samples as N_WINDOW rows each (the estimator's fields), and their count."""
+def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
+    """A batch's valid samples as len(window) rows each (the estimator's fields), and their count."""
     v = np.asarray(out["valid"])
-    state, hm = _split(np.asarray(out["window"])[v])
-    n_s = int(v.sum())
-    k = np.repeat(np.arange(n_s), N_WINDOW)
+    state, hm = _split(np.asarray(out["window"])[v], lay)
+    n_s, n_w = int(v.sum()), len(window)
+    k = np.repeat(np.arange(n_s), n_w)
 
     def rows(x, dtype):
-        return np.repeat(np.asarray(x)[v], N_WINDOW).astype(dtype)
+        return np.repeat(np.asarray(x)[v], n_w).astype(dtype)
 
     return {"state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
             "label": rows(out["label"], np.int8),
@@ -390,7 +410,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
                               else track_src[idx % n_tracks], jnp.int32)
             rng = jax.random.fold_in(jax.random.PRNGKey(seed), b)
             out = jax.device_get(runner(suite.params, rng, ids, src))
-            part, n_s = _part(out, b * batch, cfg.window)
+            part, n_s = _part(out, b * batch, cfg.window, layout(env))
             tmp = part_dir / f"tmp_{b:05d}.npz"
             np.savez_compressed(tmp, **part)
             tmp.rename(part_dir / f"part_{b:05d}.npz")

@@ -1,8 +1,10 @@
 """Plumbing and drawing of the result notebooks in this folder: where results are, the commands
-that make them, fixed-width tables, and the figures. What the notebooks print about a result (its
-rows, provenance and verdict) comes from the package: table1, table2, table3, fig4b, fig5, runs,
-estimator and provenance (`biped_switch.provenance`: labels, stand-ins, the verdict line); the
-paper's numbers from `biped_switch.paper`.
+that make them, fixed-width tables, and the figures of ours beside the paper's. What the notebooks
+print about a result (its rows, provenance and verdict) comes from the package's reports layer
+(biped_switch.reports: table1, table2, table3, fig4b, fig5, estimators and provenance: labels,
+stand-ins, the verdict line), and so do the figures the package also saves (Fig. 4b, Fig. 5 and
+the training curves: `plot_fig4b` and `plot_training_run` call it); the paper's numbers come from
+`biped_switch.paper`.
 
 Every notebook reads saved results from one results root:
 
@@ -50,6 +52,7 @@ if str(REPO) not in sys.path:  # biped_switch importable even without `pip insta
     sys.path.insert(0, str(REPO))
 
 from biped_switch import paper  # noqa: E402  (the paper's numbers)
+from biped_switch.reports import curves, fig4b  # noqa: E402  (the figures drawn by the package)
 from biped_switch.reports.provenance import rel, repo_path  # noqa: E402
 from biped_switch.learning.runs import COMMITTED_DIR, curve_series  # noqa: E402
 from biped_switch.stats import wilson_ci  # noqa: E402
@@ -350,39 +353,11 @@ def plot_table3(doc: dict, title: str = ""):
 
 # ------------------------------------------------------------------------------- Fig. 4b
 def plot_fig4b(doc: dict, smooth_bins: int = 5, title: str = ""):
-    """Success of switching against distance to the artifact, per (source -> target) pair."""
-    from biped_switch.reports.fig4b import lookup_arrays
-    from biped_switch.learning.policies import POLICY_NAMES
-    from biped_switch.stats import smoothed_success_pct
-
-    plt = _plt()
-    tables = lookup_arrays(doc)
-    fig, axes = plt.subplots(1, len(tables), figsize=(5.2 * len(tables), 3.8), squeeze=False)
-    colours = {"walk": "tab:blue", "jumps": "tab:orange", "gaps": "tab:purple", "stairs": "tab:brown"}
-    for ax, (target, t) in zip(axes[0], tables.items()):
-        for j, name in enumerate(POLICY_NAMES):
-            cnt = t["count"][j]
-            if name == target or cnt.sum() == 0:
-                continue
-            sm = smoothed_success_pct(t["rate"][j], cnt, smooth_bins)
-            c = colours.get(name)
-            ax.scatter(t["bins_m"] + 0.005, 100 * t["rate"][j], s=4 + 20 * cnt / cnt.max(),
-                       color=c, alpha=0.25, lw=0)
-            ax.plot(t["bins_m"] + 0.005, sm, color=c, label=f"{name} -> {target} (n={int(cnt.sum())})")
-            best = doc["best_m"].get(f"{name}->{target}")
-            if best is not None:
-                ax.axvline(best, ls=":", lw=1, color=c)
-        ax.set_xlim(0.9, 0)  # the robot approaches from the left: far -> near
-        ax.set_ylim(-2, 102)
-        ax.set_xlabel("switch distance before the artifact [m]")
-        ax.set_ylabel(f"% success (moving mean, {smooth_bins} cm)")
-        ax.set_title(f"switch to {target}", fontsize=10)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower left")
-    fig.suptitle(title or f"{doc.get('init')} init: switch success against distance "
-                 "(dots: 1 cm bins, size ~ points; dotted: best distance)", fontsize=9)
-    fig.tight_layout()
-    return fig
+    """Success of switching against distance to the artifact, per (source -> target) pair: the
+    package's Fig. 4b (`reports.fig4b.switch_success_figure`) of a lookup JSON."""
+    return fig4b.switch_success_figure(
+        fig4b.lookup_arrays(doc), title or f"{doc.get('init')} init: switch success against "
+        "distance (dots: 1 cm bins, size ~ points; dotted: best distance)", smooth_bins)
 
 
 # ------------------------------------------------------------------------------- training curves
@@ -457,35 +432,9 @@ def plot_training_overview(runs: Sequence[pathlib.Path]):
 
 
 def plot_training_run(run_dir: pathlib.Path):
-    """runs.plot_curves, inline: episode reward and length, eval reward per step, curriculum."""
-    plt = _plt()
-    m = metrics_rows(run_dir)
-    fig, axes = plt.subplots(1, 3, figsize=(16, 3.6))
-    x, y = series(m, "episode/sum_reward")
-    axes[0].plot(x, y, "-", color="tab:blue", label="episode/sum_reward")
-    axes[0].set_ylabel("episode/sum_reward", color="tab:blue")
-    tw = axes[0].twinx()
-    x, y = series(m, "episode/length")
-    tw.plot(x, y, ":", color="tab:gray", label="episode/length")
-    tw.set_ylabel("episode/length", color="tab:gray")
-    axes[0].set_title("training episodes", fontsize=10)
-    x, y = series(m, "eval/reward_per_step")
-    axes[1].plot(x, y, "o-")
-    axes[1].set_title("milestone rollout: reward per step", fontsize=10)
-    for key in ("difficulty", "guide_scale", "push_scale"):
-        x, y = series(m, key)
-        if len(x):
-            axes[2].step(x, y, where="post", label=key)
-    axes[2].set_ylim(-0.05, 1.05)
-    axes[2].set_title("curriculum", fontsize=10)
-    if axes[2].get_legend_handles_labels()[0]:  # a DQN run logs no curriculum
-        axes[2].legend(fontsize=8)
-    for ax in axes:
-        ax.set_xlabel("environment steps")
-        ax.grid(alpha=0.3)
-    fig.suptitle(rel(run_dir), fontsize=9)
-    fig.tight_layout()
-    return fig
+    """The run's curves.png, inline: the package's figure of a PPO or DQN run
+    (`reports.curves.run_figure`)."""
+    return curves.run_figure(run_dir, title=rel(run_dir))
 
 
 def find_estimators(results: pathlib.Path) -> list[tuple[str, pathlib.Path, pathlib.Path]]:

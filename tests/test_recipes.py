@@ -1,0 +1,182 @@
+"""Recipes that replay (learning/recipe.py): every committed run has one, and what `make train-all`
+would run from it matches what the run recorded. No training: the commands' trainers are replaced
+by a stub that keeps the config each call would train with."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import re
+
+import pytest
+
+from biped_switch.learning import recipe as recipe_lib
+from biped_switch.learning import runs as runs_lib
+from biped_switch.paths import REPO
+
+RUNS = recipe_lib.committed_runs()
+IDS = [d.name for d in RUNS]
+CKPT = re.compile(r"(?:^|/)([A-Za-z0-9_]+)/(?:checkpoints|warm_start)/(\d{12})$")
+
+
+def _recorded(run_dir: pathlib.Path) -> tuple[dict, dict]:
+    ckpt = runs_lib.latest_checkpoint(run_dir)
+    return runs_lib.read_json(run_dir / "config.json"), runs_lib.read_progress(ckpt)
+
+
+@pytest.fixture(scope="module")
+def replayed(tmp_path_factory):
+    """{run: (config of its last segment, argv, warm-start path)}: each recipe's last segment
+    given to its command's real `main`, whose trainer only keeps the config."""
+    from biped_switch import dqn, train
+    from biped_switch.learning import dqn_train, trainer
+
+    seen = {}
+
+    def keep_ppo(cfg, run_dir, *a, **k):
+        seen["cfg"] = json.loads(cfg.to_json_best_effort())
+        return {}
+
+    def keep_dqn(cfg, run_dir, *a, **k):
+        seen["cfg"] = json.loads(cfg.to_json_best_effort())
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(trainer, "train", keep_ppo)
+    mp.setattr(dqn_train, "train_dqn", keep_dqn)
+    out, results = tmp_path_factory.mktemp("replay"), {}
+    try:
+        for d in RUNS:
+            rec = recipe_lib.load(d)
+            seg = recipe_lib.segments(rec)[-1]
+            warm = str(REPO / rec["warm_start"]["path"]) if rec.get("warm_start") else None
+            flags = {**seg["flags"], **({"--warm-start": warm} if warm else {})}
+            args = recipe_lib.command_argv(rec, flags, out)
+            main = {"train": train.main, "dqn": dqn.main}[rec["command"]]
+            seen.clear()
+            with runs_lib.no_committed_copy():
+                assert main(args) == 0
+            results[d.name] = (seen["cfg"], args, warm)
+    finally:
+        mp.undo()
+    return results
+
+
+def test_every_committed_run_has_a_recipe():
+    assert {d.name for d in RUNS} >= {"walk_stand", "mixed_stand", "dqn_stand"}
+    for d in RUNS:
+        rec = recipe_lib.load(d)
+        assert rec["run"] == d.name
+        assert rec["initial_config"]["config"], d.name
+        for c in rec["changes"]:
+            assert c["why"] and c["flag"].startswith("--"), (d.name, c)
+
+
+@pytest.mark.parametrize("run", IDS)
+def test_recipe_matches_the_recorded_run(run, replayed):
+    d = next(d for d in RUNS if d.name == run)
+    rec = recipe_lib.load(d)
+    cfg, prog = _recorded(d)
+    # the final step, and how the run ended
+    assert prog["step"] == rec["final_step"]
+    if rec["ends"] == "curriculum":
+        assert prog.get("curriculum_done") or cfg.get("stop_when_done", True)
+    total = prog.get("total_steps", prog.get("total_env_steps"))
+    if rec["ends"] == "total steps":
+        assert prog["step"] >= total
+    # the last segment's config is the recorded one, up to the differences the recipe declares
+    mine, args, warm = replayed[run]
+    diff = recipe_lib.replay_config_diff(cfg, mine)
+    diff.pop("warm_start", None)
+    if rec["ends"] == "by hand":  # the replay stops where the run was stopped
+        assert diff.pop("total_timesteps") == [total, rec["final_step"]]
+    declared = {k: [v["recorded"], v["replay"]] for k, v in rec["config_differences"].items()}
+    assert diff == declared, f"{run}: replayed config differs from config.json beyond the recipe"
+    assert all(v["why"] for v in rec["config_differences"].values())
+    # the warm start: the step config.json names, from a committed checkpoint of the same run
+    recorded_warm = cfg.get("warm_start") or ""
+    if not rec.get("warm_start"):
+        assert recorded_warm == "" or rec["command"] == "dqn"
+        return
+    w = rec["warm_start"]
+    src, step = CKPT.search(recorded_warm).groups()
+    assert (src, int(step)) == (w["run"], w["step"]) and recorded_warm == w["recorded"]
+    assert CKPT.search(w["path"]).groups() == (w["run"], f"{w['step']:012d}")
+    assert runs_lib.read_progress(REPO / w["path"])["step"] == w["step"]
+    assert args[args.index("--warm-start") + 1] == warm
+
+
+def test_continuations_start_where_their_source_ended():
+    for d in RUNS:
+        c = recipe_lib.load(d).get("continues")
+        if c:
+            src = recipe_lib.load(recipe_lib.source_dir(c["run"]))
+            assert c["step"] == src["final_step"]
+            assert runs_lib.read_progress(REPO / c["path"])["step"] == c["step"]
+
+
+def test_segments_cut_at_each_change_and_export():
+    rec = recipe_lib.load(REPO / "models/policies/mixed_stand")
+    segs = recipe_lib.segments(rec)
+    assert [s["until"] for s in segs[:-1]] == sorted({c["step"] for c in rec["changes"]})
+    assert segs[-1]["until"] == rec["final_step"]
+    assert segs[0]["flags"]["--guide-notch"] == 0.5 and segs[-1]["flags"]["--guide-notch"] == 0.25
+    assert segs[-1]["flags"]["--max-action-std"] == 0.5
+    assert segs[0]["flags"]["--total-steps"] == segs[0]["until"]  # each stops where the next starts
+    walk = recipe_lib.load(REPO / "models/policies/walk_stand")
+    recipes = [recipe_lib.load(d) for d in RUNS]
+    keep = recipe_lib.exports("walk_stand", recipes)
+    assert keep == {32_366_592}  # the stand artifact policies' warm start
+    assert 32_366_592 in [s["until"] for s in recipe_lib.segments(walk, keep)]
+
+
+def test_train_all_replays_every_policy_sources_first():
+    make = (REPO / "Makefile").read_text()
+    rule = make.split("\ntrain-all:", 1)[1].split("\n\n", 1)[0]
+    assert "--recipe $(RECIPES)" in rule and "\nRECIPES ?= models/policies/*/\n" in make
+    ordered = [d.name for d in recipe_lib.order(d for d in RUNS if d.parent.name == "policies")]
+    assert set(ordered) == {d.name for d in RUNS if d.parent.name == "policies"}
+    for d in RUNS:
+        rec = recipe_lib.load(d)
+        for need in recipe_lib._needs(rec):
+            if d.name in ordered:
+                assert ordered.index(need) < ordered.index(d.name)
+
+
+def test_replay_runs_each_segment_then_resumes(tmp_path):
+    """`replay` with stub commands: one call per segment with --total-steps at each cut, the
+    warm start passed on, nothing from the committed copy; a second replay does nothing."""
+    calls = []
+
+    def fake_train(argv):
+        calls.append(argv)
+        run = pathlib.Path(argv[argv.index("--out") + 1]) / argv[argv.index("--name") + 1]
+        step = int(argv[argv.index("--total-steps") + 1])
+        ckpt = run / "checkpoints" / f"{min(step, 55_107_584):012d}"
+        ckpt.mkdir(parents=True, exist_ok=True)
+        (ckpt / "progress.json").write_text(json.dumps({"step": min(step, 55_107_584)}))
+        return 0
+
+    out = tmp_path / "replay"
+    assert recipe_lib.replay(REPO / "models/policies/jumps_stand", out, {"train": fake_train},
+                             say=lambda s: None) == 0
+    rec = recipe_lib.load(REPO / "models/policies/jumps_stand")
+    assert len(calls) == len(rec["changes"]) + 1
+    assert calls[0][calls[0].index("--total-steps") + 1] == str(rec["changes"][0]["step"])
+    assert calls[-1][calls[-1].index("--learning-rate") + 1] == "0.0001"
+    assert calls[0][calls[0].index("--warm-start") + 1].endswith("walk_stand/warm_start/000032366592")
+    assert (out / "jumps_stand" / recipe_lib.DONE).is_file()
+    calls.clear()
+    assert recipe_lib.replay(REPO / "models/policies/jumps_stand", out, {"train": fake_train},
+                             say=lambda s: None) == 0
+    assert not calls
+
+
+def test_no_committed_copy_is_scoped(tmp_path):
+    run = tmp_path / "walk_stand"
+    run.mkdir()
+    with runs_lib.no_committed_copy():
+        runs_lib.restore_committed(run, print_fn=lambda s: None)
+        assert runs_lib.latest_checkpoint(run) is None
+        assert runs_lib.read_config(run, committed=True) == {}
+    assert runs_lib.read_config(run, committed=True)["policy"] == "walk"
+
