@@ -1,8 +1,8 @@
 """The result notebooks (experiments/notebooks/*.ipynb) run top to bottom on the committed results.
 
-Each notebook is executed in a fresh kernel of this interpreter with BIPED_RESULTS pointing at the
+Each notebook is executed in a fresh kernel of this interpreter with BIPED_SWITCH_RESULTS pointing at the
 committed results of the trained stand-init policy suite (experiments/results/, `COMMITTED`), and
-for the training curves BIPED_RUNS at the committed policy runs (models/policies/). The tests check that it drew its
+for the training curves BIPED_SWITCH_RUNS at the committed policy runs (models/policies/). The tests check that it drew its
 figures, that its printed tables hold the numbers in the files and that it prints its verdict. A
 committed input that is missing fails the test; there is no synthetic fallback. A notebook pointed
 at an empty results root must fail with a message naming the command that makes its input.
@@ -44,7 +44,7 @@ INPUTS = {  # the file each notebook cannot do without, and the command its erro
 }
 POLICY_RUNS = REPO / "models" / "policies"  # the committed training runs (train --commit)
 REAL = REPO / "experiments" / "results"  # the results of the trained policies
-# The committed results each notebook runs on: (results root, runs root for BIPED_RUNS or None).
+# The committed results each notebook runs on: (results root, runs root for BIPED_SWITCH_RUNS or None).
 COMMITTED = {"table1_single_policies": (REAL, None),
              "table2_switching": (REAL, None),
              "table3_retrain_cost": (REAL, None),
@@ -278,11 +278,11 @@ def kernel_env(tmp_path_factory):
 def run_notebook(name: str, results: pathlib.Path, env: dict, monkeypatch, runs=None):
     for k, v in env.items():
         monkeypatch.setenv(k, v)
-    monkeypatch.setenv("BIPED_RESULTS", str(results))
+    monkeypatch.setenv("BIPED_SWITCH_RESULTS", str(results))
     if runs is not None:
-        monkeypatch.setenv("BIPED_RUNS", str(runs))
+        monkeypatch.setenv("BIPED_SWITCH_RUNS", str(runs))
     else:
-        monkeypatch.delenv("BIPED_RUNS", raising=False)
+        monkeypatch.delenv("BIPED_SWITCH_RUNS", raising=False)
     nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
     client = nbclient.NotebookClient(nb, kernel_name=KERNEL, timeout=120, startup_timeout=90,
                                      resources={"metadata": {"path": str(NB_DIR)}})
@@ -304,7 +304,7 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch, tmp_p
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    monkeypatch.setenv("BIPED_RESULTS", str(synthetic))
+    monkeypatch.setenv("BIPED_SWITCH_RESULTS", str(synthetic))
     assert C.results_root() == synthetic
     doc = json.loads((synthetic / "table2" / "table2.json").read_text())
     reasons = table2_report.table2_provenance(doc, synthetic / "table2" / "table2.json")
@@ -324,7 +324,7 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch, tmp_p
     ev = fig5.trial_events(rec)[1]
     assert sum(r[2] == "switch" for r in ev) == int(rec["switched"][:fig5.trial_length(rec)].sum()) > 0
     assert fig5.trial_outcome(rec) == "success"
-    monkeypatch.setenv("BIPED_RUNS", str(synthetic_runs))
+    monkeypatch.setenv("BIPED_SWITCH_RUNS", str(synthetic_runs))
     assert C.run_roots() == [synthetic_runs] == [C.runs_root()]
     runs = C.find_training_runs(synthetic)  # <results>/training/* and the runs folder
     by_name = {d.name: d for d in runs}
@@ -335,7 +335,7 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch, tmp_p
     assert any("jumps_stand" in r and "100,000 of 1,000,000" in r and "curriculum unfinished" in r
                for r in reasons)
     assert C.train_command(synthetic_runs, "gaps")[-2:] == ["--out", str(synthetic_runs)]
-    monkeypatch.delenv("BIPED_RUNS")
+    monkeypatch.delenv("BIPED_SWITCH_RUNS")
     assert C.runs_root() == REPO / "runs" and C.train_command()[-1] == "runs"
     assert C.run_roots() == [REPO / "runs", POLICY_RUNS]  # runs/, then the committed runs
     # Table III: hours whose runs cannot be found are not taken for complete runs
@@ -364,7 +364,7 @@ def test_helpers_on_synthetic_tree(synthetic, synthetic_runs, monkeypatch, tmp_p
 
 
 def test_require_names_the_command(tmp_path, monkeypatch):
-    monkeypatch.setenv("BIPED_RESULTS", str(tmp_path))
+    monkeypatch.setenv("BIPED_SWITCH_RESULTS", str(tmp_path))
     with pytest.raises(C.MissingResult, match="python -m biped_switch.evaluate multi --out"):
         C.load_json(tmp_path / "table2" / "table2.json", C.table2_command(tmp_path), "Table II")
     cmd = C.table2_command(tmp_path, {"trials": 40, "stand_in": "walk", "guide_scale": 0.5,
@@ -413,7 +413,7 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
     from biped_switch import train as train_cli
 
     monkeypatch.chdir(REPO)  # the commands are typed from the repository root
-    monkeypatch.delenv("BIPED_RUNS", raising=False)
+    monkeypatch.delenv("BIPED_SWITCH_RUNS", raising=False)
     settings = {"methods": ["random", "estimator"], "trials": 8, "batch": 4, "horizon_s": 20.0,
                 "seed": 1, "runs": "runs", "estimators": "models/estimators", "stand_in": "walk",
                 "guide_scale": 0.5, "fig5_trial": 0, "policies": ["jumps"], "inits": ["stand"]}
@@ -540,7 +540,7 @@ def test_notebook_runs(name, tmp_path, kernel_env, monkeypatch):
         assert sum(e[2] == "switch" for e in events) == int(rec["switched"][:n].sum()) > 0
         assert f"track seed {int(rec['track_seed'])}" in text
     elif name == "training_curves":
-        monkeypatch.setenv("BIPED_RUNS", str(runs_dir))
+        monkeypatch.setenv("BIPED_SWITCH_RUNS", str(runs_dir))
         runs = C.find_training_runs(data_root)
         ests = C.find_estimators(data_root)
         assert runs and ests

@@ -252,6 +252,7 @@ def test_the_push_stage_ends_with_a_milestone_at_full_pushes(tmp_path, monkeypat
     assert on["step"] == 384 and on["curriculum_done"]
 
 
+@pytest.mark.slow  # 2-3 min; the plateau rule itself: test_curriculum.test_push_plateau_by_hand
 def test_the_push_stage_ends_on_a_plateau(tmp_path, monkeypatch):
     """No milestone at push 0.5 for push_plateau_steps env steps: the curriculum ends there,
     holding push 0.4, and says so in progress.json and the log. A checkpoint from

@@ -134,6 +134,24 @@ From `experiments/results/dqn_curve/curve.md` (`scripts/dqn_checkpoint_curve.sh`
 
 ![DQN curve](../experiments/results/dqn_curve/curve.png)
 
+## The learned terrain detector (ours)
+
+From `experiments/results/detector/detector.md` (`python -m biped_switch.detector`; docs/switching.md):
+
+{{include detector/detector.md +1}}
+
+![the detector along one mixed validation trial](../experiments/results/detector/detector_trial.png)
+
+## Table II with the learned detector (ours)
+
+From `experiments/results/table2_learned_detector/table2.md` (`python -m biped_switch.evaluate multi
+--methods lookup_context --detector learned --out experiments/results/table2_learned_detector`):
+Table II's tracks, seeds, horizon and batch, with the learned detector in place of the oracle.
+
+{{include table2_learned_detector/table2.md +1}}
+
+{{include table2_learned_detector/failures_by_context.md +1}}
+
 ## Action space: torque against PD targets
 
 From `experiments/results/action_space/compare.md` (`python scripts/compare_runs.py`; docs/training.md):

@@ -8,12 +8,12 @@ the training curves: `plot_fig4b` and `plot_training_run` call it); the paper's 
 
 Every notebook reads saved results from one results root:
 
-    RESULTS = $BIPED_RESULTS, or <repo>/experiments/results when unset
+    RESULTS = $BIPED_SWITCH_RESULTS, or <repo>/experiments/results when unset
 
 laid out as the package's CLIs write it (table1/, table2/, table3/, lookup/, estimators/,
 training/). Policy training runs are read from the runs root (`runs_root`, `run_roots`):
 
-    RUNS = $BIPED_RUNS, else <repo>/runs (where `python -m biped_switch.train`, `make train-all`
+    RUNS = $BIPED_SWITCH_RUNS, else <repo>/runs (where `python -m biped_switch.train`, `make train-all`
            and `make reproduce` write; runs.find_policy looks there, then in models/policies/);
            the training curves are looked for in <repo>/runs and models/policies/ (`run_roots`)
 
@@ -72,22 +72,22 @@ def _env_path(name: str) -> pathlib.Path | None:
 
 
 def results_root() -> pathlib.Path:
-    """$BIPED_RESULTS (relative paths taken from the repository root), else experiments/results."""
-    return _env_path("BIPED_RESULTS") or DEFAULT_RESULTS
+    """$BIPED_SWITCH_RESULTS (relative paths taken from the repository root), else experiments/results."""
+    return _env_path("BIPED_SWITCH_RESULTS") or DEFAULT_RESULTS
 
 
 def runs_root() -> pathlib.Path:
-    """The runs folder results are (or are to be) made from: $BIPED_RUNS (relative paths from the
+    """The runs folder results are (or are to be) made from: $BIPED_SWITCH_RUNS (relative paths from the
     repository root), else <repo>/runs, where `train` writes (find_policy then also looks in
     models/policies/)."""
-    env = _env_path("BIPED_RUNS")
+    env = _env_path("BIPED_SWITCH_RUNS")
     return env if env is not None else DEFAULT_RUNS
 
 
 def run_roots() -> list[pathlib.Path]:
-    """Every folder searched for training runs: [$BIPED_RUNS] when set, else <repo>/runs and the
+    """Every folder searched for training runs: [$BIPED_SWITCH_RUNS] when set, else <repo>/runs and the
     committed runs in models/policies/ (where runs.find_policy looks after runs/)."""
-    env = _env_path("BIPED_RUNS")
+    env = _env_path("BIPED_SWITCH_RUNS")
     return [env] if env is not None else [DEFAULT_RUNS, COMMITTED_DIR]
 
 
@@ -106,7 +106,7 @@ def require(path, argv: Sequence[str], what: str) -> pathlib.Path:
     if path.is_file():
         return path
     msg = (f"{what} not found: {path} is missing.\nMake it with (from {REPO}):\n    "
-           f"{command_str(argv)}\nor point BIPED_RESULTS at a results root that has it "
+           f"{command_str(argv)}\nor point BIPED_SWITCH_RESULTS at a results root that has it "
            f"(now: {results_root()}).")
     raise MissingResult(msg)
 
