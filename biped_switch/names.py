@@ -20,6 +20,8 @@ BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain
 # in a row (as long as a sweep sample's window) instead of the paper's first confident step.
 CONTEXT_METHODS = ("lookup_context", "estimator_context", "estimator_context_persist")
 MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS
+# What the terrain detector names: nothing in range, or an artifact kind (class c = kind + 1).
+DETECTOR_CLASSES = ("none",) + ARTIFACT_KINDS
 HEURISTICS = ("random", "detection", "lookup", "com_over_feet")  # the paper's heuristic rows
 
 # The fields of one traced trial (`evaluate multi --fig5-trial`), as Fig. 5 reads them.

@@ -86,8 +86,9 @@ def test_onset_index_counts_like_a_python_loop():
     kinds = [-1, -1, 1, 1, -1, 1, 2, 2, -1, -1, 0]
     ss = sw.init_state(1)
     got = []
-    for k in kinds:
-        ss, idx = sw.learned_index(ss, jnp.asarray([k], jnp.int32))
+    for k in kinds:  # steps=1: no debounce, the index alone
+        ss, kind, idx = sw.learned_detection(ss, jnp.asarray([k], jnp.int32), 1)
+        assert int(kind[0]) == k
         got.append(int(idx[0]))
     # the loop: a new artifact whenever something is named after nothing was
     want, count, prev = [], 0, False
@@ -166,7 +167,7 @@ def test_detect_fn_reads_the_heightmap_of_the_observation():
 
 @pytest.mark.parametrize("steps", [1, 2, 3])
 def test_debounce_in_the_rollout_matches_the_reference(steps):
-    """switching.rules.debounced, stepped like the rollout, against reports.detector.debounce
+    """switching.rules.learned_detection, stepped like the rollout, against reports.detector.debounce
     (a Python loop) on a hand-made sequence with one-step misreadings."""
     raw = np.array([-1, 1, -1, 1, 1, 1, 2, 1, 1, -1, -1, -1, 0, 0, 2, 2, 2, -1], np.int32)
     ref = report.debounce({"episode": np.zeros(len(raw), np.int32), "step": np.arange(len(raw))},
@@ -174,7 +175,7 @@ def test_debounce_in_the_rollout_matches_the_reference(steps):
     ss = sw.init_state(1)
     got = []
     for k in raw:
-        ss, kind = sw.debounced(ss, jnp.asarray([k], jnp.int32), steps)
+        ss, kind, _ = sw.learned_detection(ss, jnp.asarray([k], jnp.int32), steps)
         got.append(int(kind[0]))
     np.testing.assert_array_equal(got, ref)
     if steps == 1:

@@ -8,9 +8,9 @@ import pathlib
 
 import numpy as np
 
-from biped_switch.names import ARTIFACT_KINDS
+from biped_switch.names import ARTIFACT_KINDS, DETECTOR_CLASSES
 
-CLASSES = ("none",) + ARTIFACT_KINDS  # class c = oracle kind + 1
+CLASSES = DETECTOR_CLASSES  # class c = oracle kind + 1
 
 
 def confusion(true_kind: np.ndarray, kind: np.ndarray) -> np.ndarray:
@@ -65,7 +65,7 @@ def onsets(data: dict, kind: np.ndarray, detect_range_m: float = 0.9,
 
 def debounce(data: dict, kind: np.ndarray, steps: int) -> np.ndarray:
     """`kind` (per step of `data`'s episodes) with every change held back until the new kind has
-    been named `steps` control steps in a row (the reference of switching.rules.debounced).
+    been named `steps` control steps in a row (the reference of switching.rules.learned_detection).
     Missing steps (the data keeps every n-th) count as one."""
     out = np.empty_like(kind)
     for e in np.unique(data["episode"]):

@@ -37,9 +37,10 @@ from flax import linen
 from biped_switch.config import default_detector_config
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
-from biped_switch.names import ARTIFACT_KINDS
+from biped_switch.names import DETECTOR_CLASSES
+from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
 
-CLASSES = ("none",) + ARTIFACT_KINDS  # class c = oracle kind + 1
+CLASSES = DETECTOR_CLASSES  # class c = oracle kind + 1
 DATA_FIELDS = ("profile", "kind", "dist_m", "yaw", "episode", "step")  # what `collect` gives
 PROFILE_STATISTIC = "median"  # across the middle columns (`profile`): part of the data's identity
 
@@ -157,12 +158,12 @@ def hand_rule(prof: np.ndarray, yaw: np.ndarray, rows_m: np.ndarray,
     names the artifact by its size: a drop of 0.5 m or more (no ground) a gap, a rise of 0.25 m or
     more a jumps block (0.30 m), a smaller rise a stair (0.17 m), a smaller drop nothing."""
     cfg = cfg or default_detector_config()
-    prof = jnp.asarray(prof)
-    found, first = (np.asarray(v) for v in _first_change(prof, rows_m, cfg))
-    rise = -2.0 * np.asarray(prof)[np.arange(len(first)), first]  # [m]; a drop < 0
+    prof, rows_m = np.asarray(prof), np.asarray(rows_m)
+    found, first = (np.asarray(v) for v in _first_change(jnp.asarray(prof), rows_m, cfg))
+    rise = -2.0 * prof[np.arange(len(first)), first]  # [m]; a drop < 0
     kind = np.where(rise <= -0.5, 1, np.where(rise >= 0.25, 0, np.where(rise > 0, 2, -1)))
-    dist = along_track_m(first_change_m(prof, rows_m, cfg), jnp.asarray(yaw))
-    return np.where(found, kind, -1), np.asarray(dist)
+    dist = np.where(found, rows_m[first] - 0.5 * (rows_m[1] - rows_m[0]), np.inf)
+    return np.where(found, kind, -1), np.asarray(along_track_m(jnp.asarray(dist), jnp.asarray(yaw)))
 
 
 # ----------------------------------------------------------------------- data
@@ -170,8 +171,6 @@ def collect(env, act, rng: jax.Array, n_envs: int, horizon: int, every: int = 1)
     """Heightmap profiles and oracle labels along `n_envs` episodes of the batched policy
     `act(obs, key)` on `env`'s tracks: profile (N, rows), kind (N,) -1..2, dist_m (N,), episode
     (N,) and step (N,), for the live steps, every `every`-th."""
-    from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
-
     cfg = default_detector_config()
     grid, sl = tuple(env.obs_layout.grid), hm_slice(env)
     reset_keys, k_run = episode_keys(rng, n_envs)

@@ -91,7 +91,6 @@ class SwitchState(NamedTuple):
     random_m: jax.Array  # random method: this artifact's switch distance [m]
     n_switches: jax.Array  # int32
     est_run: jax.Array  # int32: control steps in a row the detected target's E >= threshold
-    det_seen: jax.Array = np.int32(0)  # 1 while the learned detector names an artifact
     det_count: jax.Array = np.int32(0)  # artifacts the learned detector has named so far
     det_kind: jax.Array = np.int32(-1)  # the learned detector's kind as reported (debounced)
     det_cand: jax.Array = np.int32(-1)  # a new kind it names, not yet reported
@@ -100,25 +99,20 @@ class SwitchState(NamedTuple):
 
 def init_state(n_envs: int) -> SwitchState:
     zi, mi = jnp.zeros(n_envs, jnp.int32), jnp.full(n_envs, -1, jnp.int32)
-    return SwitchState(zi, mi, jnp.zeros(n_envs, jnp.float32), zi, zi, zi, zi, mi, mi, zi)
+    return SwitchState(zi, mi, jnp.zeros(n_envs, jnp.float32), zi, zi, zi, mi, mi, zi)
 
 
-def debounced(ss: SwitchState, kind: jax.Array, steps: int) -> tuple[SwitchState, jax.Array]:
-    """The learned detector's kind with each change held back until the new kind has been named
-    `steps` control steps in a row: a one-step misreading never switches policies. (new state,
-    reported kind)."""
+def learned_detection(ss: SwitchState, kind: jax.Array, steps: int):
+    """One control step of a learned detector's output as the rules read it: (new state, kind,
+    index). A change of kind is held back until it has been named `steps` control steps in a row
+    (a one-step misreading never switches policies). The oracle indexes artifacts by their slot
+    on the track; a learned detector sees no track, so an artifact is a new one whenever the
+    reported kind starts naming something after nothing (index: those onsets counted, -1 while
+    nothing is named)."""
     rep, cand, run = debounce_step(ss.det_kind, ss.det_cand, ss.det_run, kind, steps)
-    return ss._replace(det_kind=rep, det_cand=cand, det_run=run), rep
-
-
-def learned_index(ss: SwitchState, kind: jax.Array) -> tuple[SwitchState, jax.Array]:
-    """The oracle names artifacts by their slot on the track; a learned detector sees no track,
-    so an artifact is a new one whenever the detector starts naming something after naming
-    nothing (its onsets, counted). (new state, index: -1 while nothing is named)."""
-    seen = kind >= 0
-    count = ss.det_count + (seen & (ss.det_seen == 0)).astype(jnp.int32)
-    return (ss._replace(det_seen=seen.astype(jnp.int32), det_count=count),
-            jnp.where(seen, count, -1))
+    count = ss.det_count + ((rep >= 0) & (ss.det_kind < 0)).astype(jnp.int32)
+    ss = ss._replace(det_kind=rep, det_cand=cand, det_run=run, det_count=count)
+    return ss, rep, jnp.where(rep >= 0, count, -1)
 
 
 # ----------------------------------------------------------------------- CoM over feet
@@ -228,10 +222,10 @@ def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules
         if det_apply is None:
             index = det["index"]
         else:
-            ss, kind = debounced(ss, det["kind"], getattr(det_apply, "debounce_steps", 1))
+            ss, kind, index = learned_detection(ss, det["kind"],
+                                                getattr(det_apply, "debounce_steps", 1))
             det = ci["detect"] = {**det, "kind": kind,
                                   "dist_m": jnp.where(kind >= 0, det["dist_m"], jnp.inf)}
-            ss, index = learned_index(ss, kind)
         n_before = ss.n_switches
         ss, switched = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
             ss, det["kind"], index, det["dist_m"], ci["com_ok"], ci["est_probs"], u01, rules)
