@@ -333,6 +333,10 @@ def default_detector_config() -> config_dict.ConfigDict:
         # many control steps in a row (chosen on the validation tracks: `detector` prints each)
         debounce_steps=3,
         debounce_choices=(1, 2, 3, 4, 6),
+        # ... and a kind never directly follows another, only after none (every artifact has a
+        # flat before it): chosen on the validation tracks with the debounce
+        debounce_via_none=True,
+        via_none_choices=(False, True),
         seed=0,
         # data: each stand policy on its own terrain kind, walk on flat tracks (single kinds, as
         # the premise asks); validation on held-out seeds of the same and on mixed tracks
@@ -343,11 +347,25 @@ def default_detector_config() -> config_dict.ConfigDict:
     )
 
 
+# Setup policies per target (switching/setup.py): the sources each takes over from (the pairs
+# whose context-sweep success is thin) and the distance [m] before the target artifact at which
+# it hands over (from the context sweep's best bins into that target).
+SETUP_TARGETS = {
+    # jumps -> gaps best bin 0.405 m, stairs -> gaps 0.465 m
+    "gaps": {"sources": ("jumps", "stairs"), "handover_m": 0.45},
+    # jumps -> stairs and gaps -> stairs: the context sweep's best bins (lookup_stand_context)
+    "stairs": {"sources": ("jumps", "gaps"), "handover_m": 0.45},
+}
+
+
 def default_setup_config(target: str = "gaps") -> config_dict.ConfigDict:
     """A setup policy's training run (switching/setup.py): the train config of a
     behaviour policy (`default_train_config("cpu")`) with a `setup` section. The learner acts
     between the source policy's exit (target detected) and a fixed hand-over distance before
     the target artifact; source and target policies are the frozen `suite_init` suite."""
+    if target not in SETUP_TARGETS:
+        raise ValueError(f"no setup policy is defined for target {target!r}; expected one of "
+                         f"{tuple(SETUP_TARGETS)} (config.SETUP_TARGETS)")
     cfg = default_train_config("cpu")
     cfg.policy = f"setup_{target}"
     cfg.warm_start = "walk_stand"  # a sound gait to start from (its normaliser too)
@@ -363,10 +381,10 @@ def default_setup_config(target: str = "gaps") -> config_dict.ConfigDict:
     cfg.eval.update(n_envs=128, horizon_steps=400)
     cfg.setup = config_dict.create(
         target=target,
-        sources=("jumps", "stairs"),  # mixed in one run, alternating over the tracks
+        sources=SETUP_TARGETS[target]["sources"],  # mixed in one run, alternating over tracks
         suite_init="stand",  # the frozen source and target policies
-        handover_m=0.45,  # hand over to the target policy this far before its artifact: between
-        # the context sweep's best bins (jumps -> gaps 0.405 m, stairs -> gaps 0.465 m)
+        handover_m=SETUP_TARGETS[target]["handover_m"],  # hand over to the target policy this
+        # far before its artifact [m]
         source_segments=(4, 5),  # segments of the source artifact (full tracks: 4..9): its exit
         target_segments=(2, 3),  # ... and of the target's (gaps: 1 or 2 holes); short tracks,
         # since only the setup phase trains the learner

@@ -62,9 +62,9 @@ from biped_switch.learning.runs import BASELINE_DIR, find_policy
 from biped_switch.evaluation.single import (HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, merge_rows as merge_table1)
 from biped_switch.reports.table1 import table1_markdown
 from biped_switch.reports.fig4b import plot_switch_distances
-from biped_switch.evaluation.multi import (BASELINES, MULTI_METHODS, available_methods, evaluate_multi, merge_rows, mixed_track, trial_track)
+from biped_switch.evaluation.multi import (BASELINES, MULTI_METHODS, SETUP_METHODS, available_methods, evaluate_multi, merge_rows, mixed_track, trial_track)
 from biped_switch.reports.table2 import (claims_markdown, failures_by_context, failures_markdown,
-                                         paper_claims, policy_on_falls, policy_on_falls_markdown,
+                                         paper_claims, policy_on_falls, policy_on_falls_markdown, suite_ceiling, ceiling_markdown,
                                          switch_outcomes, switch_summary, switches_markdown,
                                          table2_markdown)
 from biped_switch.reports.table3 import retrain_cost, table3_markdown
@@ -292,6 +292,13 @@ def _main_failures(out: pathlib.Path) -> int:
     md = failures_markdown(by_method)
     if on_falls:
         md += "\n\n" + policy_on_falls_markdown(on_falls)
+    table1 = out.parent / "table1" / "table1.json"
+    if table1.exists():  # what the policies alone allow on these tracks
+        rows = [r for r in json.loads((out / "table2.json").read_text())["rows"]
+                if r["method"] not in BASELINES]
+        ceil = suite_ceiling(json.loads(table1.read_text())["rows"], tracks)
+        md += "\n\n" + ceiling_markdown(ceil, rows)
+        (out / "ceiling.json").write_text(json.dumps(ceil, indent=1))
     print(md)
     (out / "failures_by_context.md").write_text(md + "\n")
     (out / "failures_by_context.json").write_text(json.dumps(by_method, indent=1))
@@ -334,6 +341,17 @@ def _main_switches(a, p) -> int:
     print(f"wrote {out / 'switch_distances.md'}, .json and switch_distances_gaps.png "
           f"({wall:.0f} s)")
     return 0
+
+
+def _setup_trial(setup, first: int, trials: int) -> int:
+    """The first trial from `first` on whose track has an artifact pair (source, target) that one
+    of `setup`'s setup policies serves (a Fig. 5 with a setup phase), else `first`."""
+    for i in range(first, first + trials):
+        codes = trial_track(setup, i % trials).artifact_codes
+        for a, b in zip(codes[:-1], codes[1:]):
+            if setup.setup.setup_of[int(a) + 1, int(b)] >= 0:
+                return i % trials
+    return first
 
 
 def _main_multi(a, p) -> int:
@@ -399,18 +417,25 @@ def _main_multi(a, p) -> int:
     (out / "claims.md").write_text(claims_md + "\n")
     print(claims_md, flush=True)
     lock.close()
-    # Fig. 5 of each stand-suite estimator method run now: fig5_trial<i>[<suffix>.png]
+    # Fig. 5 of each stand-suite estimator method run now: fig5_trial<i>[<suffix>.png]; of each
+    # setup method, the first trial from <i> on whose track has a pair a setup policy serves
     for method in a.methods:
-        if a.fig5_trial < 0 or not method.startswith("estimator") or "stand" not in setups or \
-                method == "estimator_no_overlap":
+        if a.fig5_trial < 0 or method == "estimator_no_overlap":
             continue
-        suffix, s = method.removeprefix("estimator"), setups["stand"]
-        rec = trace_trial(s, method, a.fig5_trial % a.trials, a.seed)
-        track = trial_track(s, a.fig5_trial % a.trials)
-        path = out / f"fig5_trial{a.fig5_trial}{suffix}.png"
-        plot_trial(rec, track, path, f"{method} switching, trial {a.fig5_trial}")
-        np.savez_compressed(path.with_suffix(".npz"), **rec,
-                            track_seed=a.track_seed + a.fig5_trial % a.trials,
+        if method.startswith("estimator") and "stand" in setups:
+            suffix, s, trial = method.removeprefix("estimator"), setups["stand"], a.fig5_trial
+        elif method in SETUP_METHODS and "stand+setup" in setups:
+            s = setups["stand+setup"]
+            trial, suffix = _setup_trial(s, a.fig5_trial, a.trials), f"_{method}"
+        else:
+            continue
+        trial %= a.trials
+        rec = trace_trial(s, method, trial, a.seed)
+        rec["policy_names"] = np.asarray(s.policy_names)
+        track = trial_track(s, trial)
+        path = out / f"fig5_trial{trial}{suffix}.png"
+        plot_trial(rec, track, path, f"{method} switching, trial {trial}")
+        np.savez_compressed(path.with_suffix(".npz"), **rec, track_seed=a.track_seed + trial,
                             n_artifacts=a.n_artifacts)
         print(f"wrote {path}")
     print(json.dumps({"table2_wall_s": round(wall, 1), "session_s": round(session_s, 1),

@@ -5,6 +5,7 @@ ARTIFACT_KINDS = ("jumps", "gaps", "stairs")  # index = artifact code used in ar
 TERRAIN_KINDS = ("walk",) + ARTIFACT_KINDS + ("mixed",)  # track kinds the terrain generator lays
 POLICY_NAMES = ("walk",) + ARTIFACT_KINDS  # index = artifact code + 1
 POLICY_INDEX = {n: i for i, n in enumerate(POLICY_NAMES)}
+SETUP_POLICY_NAMES = tuple(f"setup_{k}" for k in ARTIFACT_KINDS)  # setup_<target> (ours)
 TRAIN_KINDS = POLICY_NAMES + ("mixed",)  # what `train --policy` accepts (mixed: end-to-end)
 INITS = ("stand", "random")  # the start of every episode: standing pose, or random joints
 BACKENDS = ("mujoco", "mjx")  # C engine (fast on a CPU) | MJX (an accelerator)
@@ -19,7 +20,10 @@ BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain
 # `estimator_context_persist` also asks for the estimate to hold for PERSIST_STEPS control steps
 # in a row (as long as a sweep sample's window) instead of the paper's first confident step.
 CONTEXT_METHODS = ("lookup_context", "estimator_context", "estimator_context_persist")
-MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS
+# Ours with setup policies (switching/setup.py): a method of the rows above, and where a trained
+# setup policy exists for (active policy -> target), it acts from detection to its hand-over.
+SETUP_METHODS = ("lookup_context_setup",)
+MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS + SETUP_METHODS
 # What the terrain detector names: nothing in range, or an artifact kind (class c = kind + 1).
 DETECTOR_CLASSES = ("none",) + ARTIFACT_KINDS
 HEURISTICS = ("random", "detection", "lookup", "com_over_feet")  # the paper's heuristic rows

@@ -15,16 +15,16 @@ from biped_switch import cli
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_train_config
+from biped_switch.names import SETUP_POLICY_NAMES
 from biped_switch.learning import trainer
 from biped_switch.reports import curves
 from biped_switch.switching import setup as setup_lib
 
-SETUP_POLICIES = tuple(f"setup_{k}" for k in ("jumps", "gaps", "stairs"))
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.train", description=__doc__.split("\n")[0])
-    p.add_argument("--policy", default="walk", choices=trainer.TRAIN_KINDS + SETUP_POLICIES,
+    p.add_argument("--policy", default="walk", choices=trainer.TRAIN_KINDS + SETUP_POLICY_NAMES,
                    help="a behaviour policy, mixed: the end-to-end baseline, or setup_<target>: "
                         "a setup policy (switching/setup.py; its recipe: config.default_setup_config)")
     cli.add_init(p)

@@ -165,19 +165,27 @@ def test_detect_fn_reads_the_heightmap_of_the_observation():
     np.testing.assert_allclose(np.asarray(out["dist_m"]), [0.5, 0.25], atol=1e-6)
 
 
+@pytest.mark.parametrize("via_none", [False, True])
 @pytest.mark.parametrize("steps", [1, 2, 3])
-def test_debounce_in_the_rollout_matches_the_reference(steps):
+def test_debounce_in_the_rollout_matches_the_reference(steps, via_none):
     """switching.rules.learned_detection, stepped like the rollout, against reports.detector.debounce
     (a Python loop) on a hand-made sequence with one-step misreadings."""
     raw = np.array([-1, 1, -1, 1, 1, 1, 2, 1, 1, -1, -1, -1, 0, 0, 2, 2, 2, -1], np.int32)
     ref = report.debounce({"episode": np.zeros(len(raw), np.int32), "step": np.arange(len(raw))},
-                          raw, steps)
+                          raw, steps, via_none)
     ss = sw.init_state(1)
     got = []
     for k in raw:
-        ss, kind, _ = sw.learned_detection(ss, jnp.asarray([k], jnp.int32), steps)
+        ss, kind, _ = sw.learned_detection(ss, jnp.asarray([k], jnp.int32), steps, via_none)
         got.append(int(kind[0]))
     np.testing.assert_array_equal(got, ref)
+    if via_none and steps == 1:  # 2 after 1, and 2 after 0, are held back until a none
+        np.testing.assert_array_equal(
+            ref, [-1, 1, -1, 1, 1, 1, 1, 1, 1, -1, -1, -1, 0, 0, 0, 0, 0, -1])
+        return
+    if via_none and steps == 2:  # the run of three 2s after the 0s never gets through
+        assert 2 not in ref and list(ref[12:]) == [-1, 0, 0, 0, 0, 0]
+        return
     if steps == 1:
         np.testing.assert_array_equal(ref, raw)
     if steps == 3:  # the lone 2 among the 1s and the two 0s never get through

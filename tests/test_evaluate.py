@@ -279,7 +279,9 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end",
-                        "lookup_context", "estimator_context", "estimator_context_persist"}
+                        "lookup_context", "estimator_context", "estimator_context_persist",
+                        "lookup_context_setup"}
+    assert "--policy setup_gaps" in why["lookup_context_setup"]
     assert "make train-dqn" in why["dqn"] and "--policy mixed" in why["end_to_end"]
     assert "random-init walk" in why["estimator_no_overlap"]
     # a suite with a policy missing is skipped, naming it
@@ -300,14 +302,24 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     assert "lookup" not in ok and skipped[0] == (
         f"lookup: the lookup table in {lookup} has no gaps, stairs (python -m biped_switch.sweep "
         "--targets gaps stairs)")
-    assert [s.split(":")[0] for s in skipped[1:]] == list(table2.CONTEXT_METHODS)
+    later = list(table2.CONTEXT_METHODS + table2.SETUP_METHODS)
+    assert [s.split(":")[0] for s in skipped[1:]] == later
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.SWITCH_METHODS + table2.BASELINES)
-    assert [s.split(":")[0] for s in skipped] == list(table2.CONTEXT_METHODS)
+    assert [s.split(":")[0] for s in skipped] == later
     # a context sweep of one target: the other targets keep the plain sweep's parts
     (est / "stand_context_gaps").mkdir()
     (lookup / "lookup_stand_context.json").write_text('{"tables": {"gaps": {}}}')
+    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    assert ok == list(table2.SWITCH_METHODS + table2.BASELINES + table2.CONTEXT_METHODS)
+    assert [s.split(":")[0] for s in skipped] == list(table2.SETUP_METHODS)
+    # a setup policy: its run's config says what it serves
+    _fake_ckpt(runs / "setup_gaps_stand")
+    (runs / "setup_gaps_stand" / "config.json").write_text(
+        '{"setup": {"target": "gaps", "sources": ["jumps", "stairs"], "handover_m": 0.45}}')
+    assert table2.find_setup_policies("stand", runs) == {
+        "setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)}
     ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.MULTI_METHODS) and skipped == []
     assert runs_lib.find_dqn(runs) == runs / "dqn_stand"

@@ -4,6 +4,7 @@ hand-made trials."""
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from biped_switch.reports.table2 import policy_on_falls, policy_on_falls_markdown
 
@@ -26,3 +27,23 @@ def test_policy_on_falls_counts_wrong_policies_by_hand():
     assert out["stairs"] == {"falls": 0, "wrong_policy": 0, "before_start": 0}
     md = policy_on_falls_markdown({"lookup_context": out})
     assert "| lookup_context | 1 / 0 / 1 | 2 / 1 / 0 | 0 / 0 / 0 |" in md
+
+
+def test_suite_ceiling_by_hand():
+    """Per-artifact success = Table I success ** (1/7); a track's = the product over its
+    artifacts; the ceiling = the mean over tracks (hand-computed)."""
+    from biped_switch.reports.table2 import suite_ceiling
+
+    rows = [{"policy": k, "init": "stand", "success_pct": 100 * s, "success_ci": [100 * lo, 100]}
+            for k, s, lo in (("jumps", 0.5 ** 7, 0.25 ** 7), ("gaps", 1.0, 1.0),
+                             ("stairs", 0.9 ** 7, 0.8 ** 7))]
+    rows.append({"policy": "walk", "init": "stand", "success_pct": 0.0, "success_ci": [0, 0]})
+    tracks = [SimpleNamespace(artifacts=[("jumps", 0, 1), ("gaps", 2, 3), ("stairs", 4, 5)]),
+              SimpleNamespace(artifacts=[("gaps", 0, 1), ("gaps", 2, 3)])]
+    c = suite_ceiling(rows, tracks)
+    assert abs(c["ceiling_pct"] - 100 * (0.5 * 0.9 + 1.0) / 2) < 1e-9
+    assert abs(c["ceiling_ci"][0] - 100 * (0.25 * 0.8 + 1.0) / 2) < 1e-9
+    assert abs(c["ceiling_ci"][1] - 100.0) < 1e-9
+    assert c["artifacts_per_track"] == {"jumps": 0.5, "gaps": 1.5, "stairs": 0.5}
+    with pytest.raises(ValueError, match="stairs"):
+        suite_ceiling(rows[:2], tracks)

@@ -126,3 +126,21 @@ def test_ppo_learner_mask_counts_learner_steps():
     ts, envs, m = tr.iteration(ts, envs, jax.random.PRNGKey(2), curr)
     assert float(m["train/learner_frac"]) == pytest.approx(0.5)  # every other step
     assert np.isfinite(float(m["loss/policy"]))
+
+
+def test_setup_report_tables_by_hand():
+    """reports.setup: one table per target, no setup first, then the setup policy by step."""
+    from biped_switch.reports.setup import setup_markdown
+
+    cfg = {"target": "gaps", "source_segments": [4, 9], "target_segments": [4, 9]}
+    base = {"episodes": 4, "tracks": "setup tracks 70000 + i", "handover_m": 0.45,
+            "setup_config": cfg}
+    cell = {"n": 2, "success_pct": 50.0, "ci95_pct": [9.5, 90.5]}
+    docs = [{**base, "setup_policy": "runs/x/setup_gaps_stand_5/checkpoints/000000000005",
+             "setup_policy_step": 2_500_000, "jumps->gaps": {**cell, "success_pct": 100.0}},
+            {**base, "setup_policy": "source", "setup_policy_step": None, "jumps->gaps": cell}]
+    md = setup_markdown(docs).splitlines()
+    assert md[0] == "### Into gaps"
+    assert md[4] == "| in the setup phase | jumps->gaps |"
+    assert md[6] == "| no setup: the source walks on to the hand-over | 50.0% (9.5-90.5), n=2 |"
+    assert md[7] == "| setup_gaps_stand at 2.50M env steps | 100.0% (9.5-90.5), n=2 |"

@@ -71,10 +71,10 @@ def test_com_over_feet_needs_feet_together():
 
 # ----------------------------------------------------------------------- decisions on traces
 def _run(method, dists, kinds, com_ok=None, est=None, lookup=None, active0=0, u01=0.5,
-         persist=None, index=None):
+         persist=None, index=None, setup=None):
     """Feeds a synthetic approach (detections per step) through `decide`; returns switch steps.
     `index` (per step) names the detected artifact (default 0 while one is seen)."""
-    rules = sw.make_rules(method, lookup_m=lookup, persist_steps=persist)
+    rules = sw.make_rules(method, lookup_m=lookup, persist_steps=persist, setup=setup)
     ss = sw.SwitchState(jnp.int32(active0), jnp.int32(-1), jnp.float32(0), jnp.int32(0),
                         jnp.int32(0))
     n = len(dists)
@@ -182,6 +182,51 @@ def test_new_artifact_gets_new_random_distance_and_switches_again():
     assert not s and float(ss.random_m) == pytest.approx(0.09) and int(ss.art_index) == 1
     ss, s = sw.decide(ss, jnp.int32(2), jnp.int32(1), jnp.float32(0.08), False, jnp.zeros(3), 0.9, rules)
     assert s and int(ss.active) == 3 and float(ss.random_m) == pytest.approx(0.09)
+
+
+# a suite of the four policies and one setup policy (index 4) for jumps/stairs -> gaps at 0.45 m
+SETUP = sw.setup_slots(("walk", "jumps", "gaps", "stairs", "setup_gaps"),
+                       {"setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)})
+
+
+def test_setup_slots_by_hand():
+    want = np.full((5, 3), -1)
+    want[1, 1] = want[3, 1] = 4  # jumps -> gaps and stairs -> gaps through setup_gaps
+    np.testing.assert_array_equal(SETUP.setup_of, want)
+    np.testing.assert_array_equal(np.isnan(SETUP.handover_m), [True, False, True])
+    assert SETUP.handover_m[1] == np.float32(0.45)
+    with pytest.raises(ValueError, match="1.2"):
+        sw.setup_slots(("walk", "jumps", "gaps", "stairs", "setup_gaps"),
+                       {"setup_gaps": ("gaps", ("jumps",), 1.2)})
+    with pytest.raises(ValueError, match="'hop'"):
+        sw.setup_slots(("walk", "jumps", "gaps", "stairs", "setup_gaps"),
+                       {"setup_gaps": ("gaps", ("hop",), 0.45)})
+
+
+@pytest.mark.parametrize("method", ["lookup", "detection", "estimator"])
+def test_setup_policy_from_detection_to_hand_over(method):
+    """From jumps: into setup_gaps at first sight (whatever the method), into gaps at 0.45 m."""
+    lookup = np.full((4, 3), 0.2)
+    steps, actives, _ = _run(method, DISTS, KINDS, lookup=lookup, active0=1, setup=SETUP)
+    assert steps[0] == FIRST_SEEN and actives[FIRST_SEEN] == 4
+    assert len(steps) == 2 and actives[steps[1]] == 2
+    assert DISTS[steps[1]] <= 0.45 < DISTS[steps[1] - 1]
+
+
+def test_setup_policy_only_for_its_sources():
+    """From walk (no setup pair) the lookup rule alone decides; the same rules, no setup slots,
+    give the same switches as before."""
+    lookup = np.full((4, 3), 0.2)
+    with_setup, _, _ = _run("lookup", DISTS, KINDS, lookup=lookup, active0=0, setup=SETUP)
+    plain, _, _ = _run("lookup", DISTS, KINDS, lookup=lookup, active0=0)
+    assert with_setup == plain and DISTS[plain[0]] <= 0.2 < DISTS[plain[0] - 1]
+
+
+def test_setup_skipped_when_detected_inside_hand_over():
+    """A late detection (0.3 m, inside the 0.45 m hand-over) goes straight to the target."""
+    kinds = np.where(DISTS <= 0.3, 1, -1)
+    steps, actives, _ = _run("detection", DISTS, kinds, active0=3, setup=SETUP)
+    assert len(steps) == 1 and actives[steps[0]] == 2
 
 
 def test_make_rules_errors():

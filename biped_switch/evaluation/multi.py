@@ -37,7 +37,7 @@ from biped_switch.simulation.rollout import over_devices
 from biped_switch.stats import episode_table, join_rows
 
 from biped_switch.names import (BASELINES, CONTEXT_METHODS, MULTI_METHODS,  # noqa: E402,F401
-                                SWITCH_METHODS)
+                                SETUP_METHODS, SETUP_POLICY_NAMES, SWITCH_METHODS)
 PERSIST_STEPS = sweep.N_WINDOW
 
 
@@ -45,7 +45,28 @@ def switch_rule(method: str) -> str:
     """The switching.METHODS rule a Table II switching method applies."""
     if method.startswith("estimator"):
         return "estimator"
-    return method.removesuffix("_context")
+    return base_method(method).removesuffix("_context")
+
+
+def base_method(method: str) -> str:
+    """The Table II method a setup method (SETUP_METHODS) adds setup policies to."""
+    return method.removesuffix("_setup") if method in SETUP_METHODS else method
+
+
+def find_setup_policies(init: str, runs) -> dict:
+    """{setup policy name: (target kind, source policy names, hand-over distance [m])} of the
+    trained setup policies of an init mode (`train --policy setup_<target>`), each as its run's
+    config says it was trained: the sources it takes over from and the distance it hands over at."""
+    found = {}
+    for name in SETUP_POLICY_NAMES:
+        ckpt = runs_lib.find_policy(name, init, runs)
+        if ckpt is None:
+            continue
+        s = runs_lib.read_config(ckpt.parent.parent).get("setup")
+        if not s:
+            raise ValueError(f"{ckpt}: a setup policy's run config.json without a setup section")
+        found[name] = (s["target"], tuple(s["sources"]), float(s["handover_m"]))
+    return found
 
 
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
@@ -69,6 +90,10 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
                                f"models/policies/ (python -m biped_switch.train --policy P "
                                f"--init {init})")
                 continue
+        if m in SETUP_METHODS and not find_setup_policies(init, runs):
+            skipped.append(f"{m}: no {init}-init setup policy under {runs}/ or models/policies/ "
+                           f"(python -m biped_switch.train --policy setup_gaps --init {init})")
+            continue
         if m.startswith("estimator_context"):
             if est_lib.context_estimator_paths(init, est_dir) is None:
                 skipped.append(f"{m}: no {init}_context estimator in {est_dir} (python -m "
@@ -79,7 +104,7 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
                 (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
             skipped.append(f"{m}: no {init}-init estimators in {est_dir} (make train-estimators)")
             continue
-        if m == "lookup_context":
+        if base_method(m) == "lookup_context":
             missing = lookup.context_lookup_missing("stand", lookup_dir)
             if missing is None or missing:
                 skipped.append(f"{m}: no context lookup table covering every target in {lookup_dir}"
@@ -154,12 +179,19 @@ class MultiSetup:
                  est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
                  guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto",
                  need_context: Sequence[str] = (), track_seed: int = MULTI_TRACK_SEED,
-                 detector_dir=None):
+                 detector_dir=None, with_setup: bool = False):
         self.init = init
+        # the setup methods' suite: the four policies, then every trained setup policy
+        setups = find_setup_policies(init, runs) if with_setup else {}
+        if with_setup and not setups:
+            raise FileNotFoundError(f"no {init}-init setup policy under {runs}/ or models/policies/")
+        names = pol.POLICY_NAMES + tuple(setups)
         self.env = multi_env(init, trials, n_artifacts, track_seed, backend=backend,
-                             **pol.suite_env_overrides(init, runs, stand_in=stand_in))
+                             **pol.suite_env_overrides(init, runs, stand_in=stand_in, names=names))
         det_apply, self.det_params, self.detector = load_detector(detector_dir, self.env)
-        self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in)
+        self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in, names=names)
+        self.policy_names = names
+        self.setup = sw.setup_slots(names, setups) if setups else None
         self.est_apply, self.est_params, self.est_meta = None, None, None
         if need_estimators:
             self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
@@ -191,6 +223,10 @@ class MultiSetup:
             m, used = lookup.load_context_lookup(init, lookup_dir)
             self.variants["lookup_context"] = {"lookup_m": m}
             self.parts["lookup_context"] = used
+        for name, (target, sources, handover_m) in setups.items():
+            self.parts.setdefault("setup", []).append(
+                f"{name}: {sources} -> {target}, hand-over at {handover_m:g} m: "
+                f"{self.suite.sources[names.index(name)]}")
         self.horizon = int(round(horizon_s / self.env.dt))
 
         env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon
@@ -208,9 +244,10 @@ class MultiSetup:
     def rules_for(self, method: str):
         """(switching rules, estimator params) of Table II method `method` (a switching.METHODS
         rule, or a context variant with its own estimators, lookup or persistence)."""
-        var = self.variants.get(method, {})
+        var = self.variants.get(base_method(method), {})
         rules = sw.make_rules(switch_rule(method), lookup_m=var.get("lookup_m", self.lookup_m),
-                              persist_steps=var.get("persist_steps"))
+                              persist_steps=var.get("persist_steps"),
+                              setup=self.setup if method in SETUP_METHODS else None)
         return rules, var.get("est_params", self.est_params)
 
     def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
@@ -308,27 +345,34 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
             merged = setups[method].evaluate(trials, seed, print_fn)
             sources = setups[method].sources
         else:
-            if init not in setups:
-                need_est = ("estimator_no_overlap" if init == "random" else "estimator") in methods
-                need_ctx = [m for m in CONTEXT_METHODS if m in methods] if init == "stand" else []
-                setups[init] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
-                                          lookup_dir, need_est,
-                                          "lookup" in methods and init == "stand", guide_scale,
-                                          n_artifacts, backend, need_context=need_ctx,
-                                          track_seed=track_seed, detector_dir=detector_dir)
-            merged = setups[init].evaluate(method, trials, seed, print_fn)
-            sources = setups[init].suite.sources
+            # the setup methods run a suite with the setup policies, in a rollout of their own
+            key = f"{init}+setup" if method in SETUP_METHODS else init
+            if key not in setups:
+                group = [m for m in methods if (m in SETUP_METHODS) == (method in SETUP_METHODS)]
+                bases = {base_method(m) for m in group}
+                need_est = ("estimator_no_overlap" if init == "random" else "estimator") in bases
+                need_ctx = [m for m in CONTEXT_METHODS if m in bases] if init == "stand" else []
+                setups[key] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
+                                         lookup_dir, need_est,
+                                         "lookup" in bases and init == "stand", guide_scale,
+                                         n_artifacts, backend, need_context=need_ctx,
+                                         track_seed=track_seed, detector_dir=detector_dir,
+                                         with_setup=method in SETUP_METHODS)
+            merged = setups[key].evaluate(method, trials, seed, print_fn)
+            sources = setups[key].suite.sources
         if per_trial is not None:
             per_trial[method] = {k: np.asarray(merged[k]) for k in TRIAL_FIELDS if k in merged}
         row = episode_table(merged)
-        env = setups[method if method in BASELINES else init].env
+        used = setups[method if method in BASELINES else key]
         row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
                    switches_per_trial=float(np.mean(merged["n_switches"])),
-                   policies=list(sources), backend=env.backend,
-                   detector=setups[method if method in BASELINES else init].detector)
+                   policies=list(sources), backend=used.env.backend, detector=used.detector)
         if method not in BASELINES:
-            parts = setups[init].parts
-            parts = parts.get(method, parts.get(switch_rule(method)))
+            base = base_method(method)
+            parts = list(used.parts.get(base, used.parts.get(switch_rule(base), [])))
+            if method in SETUP_METHODS:
+                parts += used.parts["setup"]
+                row["policy_names"] = list(used.policy_names)
             if parts:
                 row["switch_parts"] = parts  # the estimators or lookup file per target
         rows.append(row)

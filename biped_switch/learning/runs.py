@@ -310,7 +310,8 @@ def run_notes(run_dir, step_goal: bool = True) -> list[str]:
     if c is not None and (c["guide_scale"] > 1e-6 or c["difficulty"] < 1 - 1e-6):
         notes.append(f"curriculum unfinished ({c['stage_name']} d={round(float(c['difficulty']), 3)} "
                      f"guide={round(float(c['guide_scale']), 3)})")
-    elif "curriculum_done" in prog and not prog["curriculum_done"]:  # PPO runs since 2026-12-01
+    elif ("curriculum_done" in prog and not prog["curriculum_done"]
+          and "setup" not in cfg):  # PPO runs since 2026-12-01; a setup run has no pushes
         notes.append(f"push stage unfinished (push={round(float(c['push_scale']), 3)})")
     stand_in = prog.get("stand_in") or any("stand-in" in str(p) for p in prog.get("policies") or ())
     if stand_in:

@@ -63,10 +63,11 @@ def onsets(data: dict, kind: np.ndarray, detect_range_m: float = 0.9,
 
 
 
-def debounce(data: dict, kind: np.ndarray, steps: int) -> np.ndarray:
+def debounce(data: dict, kind: np.ndarray, steps: int, via_none: bool = False) -> np.ndarray:
     """`kind` (per step of `data`'s episodes) with every change held back until the new kind has
-    been named `steps` control steps in a row (the reference of switching.rules.learned_detection).
-    Missing steps (the data keeps every n-th) count as one."""
+    been named `steps` control steps in a row (the reference of switching.rules.learned_detection);
+    with `via_none`, a kind never directly follows another. Missing steps (the data keeps every
+    n-th) count as one."""
     out = np.empty_like(kind)
     for e in np.unique(data["episode"]):
         idx = np.flatnonzero(data["episode"] == e)
@@ -80,7 +81,7 @@ def debounce(data: dict, kind: np.ndarray, steps: int) -> np.ndarray:
                 run += 1
             else:
                 cand, run = k, 1
-            if run >= steps:
+            if run >= steps and not (via_none and rep >= 0 and cand >= 0):
                 rep, run = cand, 0
             out[i] = rep
     return out
@@ -93,12 +94,22 @@ def detector_metrics(data: dict, kind: np.ndarray, dist: np.ndarray, band_m=(0.0
     ons = onsets(data, kind)
     e = ons["onset_error_cm"]
     tk, td = data["kind"], data["dist_m"]
+    # every change of the reported kind into a kind the oracle is not naming then (on or before
+    # an artifact): each one switches into a wrong policy
+    wrong_onsets = 0
+    for ep in np.unique(data["episode"]):
+        idx = np.flatnonzero(data["episode"] == ep)
+        idx = idx[np.argsort(data["step"][idx])]
+        k = kind[idx]
+        ch = np.flatnonzero(k[1:] != k[:-1]) + 1
+        wrong_onsets += int(np.sum((k[ch] >= 0) & (k[ch] != tk[idx][ch])))
     inband = (tk >= 0) & (kind == tk) & (td >= band_m[0]) & (td <= band_m[1])
     seen = inband & np.isfinite(dist)  # a named kind with no height change ahead has no distance
     derr = 100.0 * np.abs(dist[seen] - td[seen])
     return {"steps": int(len(tk)), "accuracy": float(np.trace(conf) / max(conf.sum(), 1)),
             "confusion": conf.tolist(), "approaches": ons["approaches"], "missed": ons["missed"],
             "wrong_first": ons["wrong_first"], "lingering": ons["lingering"],
+            "wrong_onsets": wrong_onsets,
             "onset_error_cm": {"mean": float(e.mean()) if len(e) else None,
                                "median": float(np.median(e)) if len(e) else None,
                                "p5": float(np.percentile(e, 5)) if len(e) else None,
@@ -126,18 +137,20 @@ def detector_markdown(meta: dict) -> str:
               f"{meta['device']}: data {meta['cost_s']['data']:.0f} s, training "
               f"{meta['cost_s']['train']:.0f} s.", ""]
     lines += ["| data | rule | step accuracy | approaches | missed | a third kind first | "
-              "still the last kind | onset error [cm] mean (median; 5-95%) | "
-              "distance error [cm] mean (95%; % with none) |", "|---|---|---|---|---|---|---|---|---|"]
+              "still the last kind | a wrong kind named | onset error [cm] mean (median; 5-95%) | "
+              "distance error [cm] mean (95%; % with none) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for key, m in meta["metrics"].items():
         data, rule = key.split("/")
         o, de = m["onset_error_cm"], m["dist_abs_error_cm"]
         lines.append(f"| {data} | {rule} | {100 * m['accuracy']:.2f}% | {m['approaches']} | "
-                     f"{m['missed']} | {m['wrong_first']} | {m.get('lingering', '-')} | {_fmt(o['mean'])} ({_fmt(o['median'])}; "
+                     f"{m['missed']} | {m['wrong_first']} | {m.get('lingering', '-')} | {m.get('wrong_onsets', '-')} | {_fmt(o['mean'])} ({_fmt(o['median'])}; "
                      f"{_fmt(o['p5'])} .. {_fmt(o['p95'])}) | {_fmt(de['mean'])} ({_fmt(de['p95'])}; {_fmt(de.get('no_distance_pct'))}) |")
     lines += ["", "Approaches: each time the oracle starts naming an artifact. A third kind first: "
               "before naming it right, the detector named a kind that is neither this artifact's "
               "nor the one just crossed (a switch into a wrong policy); still the last kind: it "
-              "kept naming the artifact just crossed (whose policy is the one acting: no switch). ",
+              "kept naming the artifact just crossed (whose policy is the one acting: no switch); "
+              "a wrong kind named: each change of the reported kind into a kind the oracle is not "
+              "naming then, on or before an artifact (a switch into a wrong policy). ",
               "Onset error: the oracle's distance to the artifact's start when the detector first "
               "names it, minus the oracle's own (its first step within 0.9 m); negative = later "
               "than the oracle. Distance error: |predicted - true| distance to the start while "

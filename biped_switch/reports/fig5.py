@@ -18,6 +18,12 @@ def load_trial(path) -> dict:
     return rec
 
 
+def policy_names(rec: dict) -> tuple:
+    """The names of the suite's policies, by active index (a setup method's suite adds its setup
+    policies after POLICY_NAMES, and its trace records their names)."""
+    return tuple(str(n) for n in rec["policy_names"]) if "policy_names" in rec else POLICY_NAMES
+
+
 def trial_length(rec: dict) -> int:
     live = np.flatnonzero(np.asarray(rec["ended"]) < 0.5)
     return int(live[-1]) + 1 if len(live) else 1
@@ -42,7 +48,7 @@ def trial_events(rec: dict):
         k = int(kind[i])
         e = f"{rec['est_probs'][i, k]:.2f}" if k >= 0 else "-"
         rows.append([int(i), f"{rec['time_s'][i]:.2f}", "switch",
-                     f"{POLICY_NAMES[int(rec['active'][i])]}",
+                     f"{policy_names(rec)[int(rec['active'][i])]}",
                      f"{rec['det_dist_m'][i]:.2f}" if k >= 0 else "-", e,
                      "yes" if rec["com_ok"][i] > 0.5 else "no"])
     rows.sort(key=lambda r: (r[0], r[2] == "switch"))
@@ -67,7 +73,8 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
     kind = rec["det_kind"][:n].astype(int)
     fig, (ax0, axp, ax1) = plt.subplots(3, 1, figsize=(13, 7.5), sharex=True,
                                         gridspec_kw={"height_ratios": [3, 0.6, 3]})
-    colours = {"walk": "tab:blue", "jumps": "tab:orange", "gaps": "tab:purple", "stairs": "tab:brown"}
+    colours = {"walk": "tab:blue", "jumps": "tab:orange", "gaps": "tab:purple", "stairs": "tab:brown",
+               "setup_gaps": "tab:red", "setup_stairs": "tab:pink", "setup_jumps": "tab:olive"}
     for k, name in enumerate(ARTIFACT_KINDS):
         p = rec["est_probs"][:n, k]
         ax0.plot(t, p, color=colours[name], lw=0.5, alpha=0.25)
@@ -87,7 +94,8 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
                   fontsize=8)
     # active policy strip
     active = rec["active"][:n].astype(int)
-    for j, name in enumerate(POLICY_NAMES):
+    names = policy_names(rec)
+    for j, name in enumerate(names):
         on = active == j
         if on.any():
             axp.fill_between(t, 0, 1, where=on, step="mid", color=colours[name], alpha=0.7,
@@ -107,6 +115,10 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
     ax1.fill_between(t, ymin, com_z.max() + 0.2, where=ok, step="mid", color="gold", alpha=0.25,
                      lw=0, label="CoM over feet")
     ax1.fill_between(t, ymin, ground, color="pink", step="mid", label="terrain under the CoM")
+    in_setup = np.array([names[j].startswith("setup_") for j in active])
+    if in_setup.any():  # the setup phases (a setup policy acting), marked on the terrain panel
+        ax1.fill_between(t, ymin, com_z.max() + 0.2, where=in_setup, step="mid", color="tab:red",
+                         alpha=0.15, lw=0, label="setup policy acting")
     soles_z = rec["soles"][:n, :, 2]
     ax1.plot(t, soles_z[:, :4].mean(1), color="tab:blue", lw=1, label="left foot")
     ax1.plot(t, soles_z[:, 4:].mean(1), color="tab:green", lw=1, label="right foot")

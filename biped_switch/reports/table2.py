@@ -19,6 +19,49 @@ def _reached(track, progress_frac: float, detect_range_m: float) -> tuple[float,
     return x, [k for k, (_, a0, _) in enumerate(track.artifacts) if a0 - detect_range_m <= x]
 
 
+def suite_ceiling(table1_rows: list[dict], tracks, init: str = "stand",
+                  artifacts_per_trial: int = 7) -> dict:
+    """The success a suite with perfect transitions would reach on `tracks`: each artifact
+    crossed by its own policy with the per-artifact success that policy shows on its own terrain
+    in Table I (success ** (1 / artifacts_per_trial) of its Table I trials, artifacts taken as
+    independent), a track's success the product over its artifacts, averaged over the tracks.
+    The interval takes every policy at its Table I success CI's lower, then upper, bound. What
+    is left between a row and this ceiling is lost in the transitions."""
+    per = {}
+    for r in table1_rows:
+        if r.get("init") == init and r.get("policy") in ARTIFACT_KINDS:
+            per[r["policy"]] = [(v / 100.0) ** (1.0 / artifacts_per_trial)
+                                for v in (r["success_pct"], *r["success_ci"])]
+    missing = [k for k in ARTIFACT_KINDS if k not in per]
+    if missing:
+        raise ValueError(f"Table I has no {init}-init row for {missing}: no ceiling")
+    counts = np.array([[sum(1 for a in t.artifacts if a[0] == k) for k in ARTIFACT_KINDS]
+                       for t in tracks], float)
+    out = []
+    for j in range(3):  # estimate, low, high
+        p = np.array([per[k][j] for k in ARTIFACT_KINDS])
+        out.append(100.0 * float(np.mean(np.prod(p[None, :] ** counts, axis=1))))
+    return {"ceiling_pct": out[0], "ceiling_ci": out[1:],
+            "per_artifact_success_pct": {k: 100.0 * per[k][0] for k in ARTIFACT_KINDS},
+            "artifacts_per_track": {k: float(counts[:, i].mean())
+                                    for i, k in enumerate(ARTIFACT_KINDS)},
+            "tracks": len(tracks), "init": init}
+
+
+def ceiling_markdown(ceil: dict, rows: list[dict]) -> str:
+    """The ceiling and each row's distance from it [points]."""
+    lo, hi = ceil["ceiling_ci"]
+    per = ", ".join(f"{k} {v:.2f}%" for k, v in ceil["per_artifact_success_pct"].items())
+    lines = [f"Ceiling of a perfect-transition suite on these {ceil['tracks']:,} tracks: "
+             f"**{ceil['ceiling_pct']:.1f}%** ({lo:.1f}-{hi:.1f}), from Table I's {ceil['init']}-"
+             f"init policies on their own terrain (per artifact: {per}).", "",
+             "| method | % success | below the ceiling [points] |", "|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['method']} | {r['success_pct']:.1f} | "
+                     f"{ceil['ceiling_pct'] - r['success_pct']:.1f} |")
+    return "\n".join(lines)
+
+
 def failures_by_context(tracks, progress_frac, fell, fail_kind,
                         detect_range_m: float | None = None) -> dict:
     """{kind: {previous kind or "start": [reached, fell on it]}} over trials on `tracks`.

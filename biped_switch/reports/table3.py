@@ -15,7 +15,7 @@ import numpy as np
 from biped_switch import paper
 from biped_switch.reports import provenance as prov
 from biped_switch.learning import runs as runs_lib
-from biped_switch.names import ARTIFACT_KINDS
+from biped_switch.names import ARTIFACT_KINDS, SETUP_POLICY_NAMES
 
 
 def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand") -> dict:
@@ -67,6 +67,21 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
                  "parts": ours_parts, "device": ", ".join(devices) or "?",
                  "status": status(pol_notes + data_notes, ours_ok),
                  "paper_hours": paper.TABLE3_H["ours"]})
+    # ours + setup: the same, plus every trained setup policy (one per target with thin overlap;
+    # adding a behaviour adds at most its own setup policy and retrains those whose sources
+    # it joins: still linear in behaviours, where the DQN and end-to-end retrain on everything)
+    setup_r = {n: runs_lib.run_record(runs_lib.find_policy(n, init, runs))
+               for n in SETUP_POLICY_NAMES}
+    setup_r = {n: r for n, r in setup_r.items() if r is not None}
+    if setup_r:
+        parts = {**ours_parts, **{n: r["wall_s"] / 3600 for n, r in setup_r.items()}}
+        rows.append({"method": "ours_setup",
+                     "hours": sum(parts.values()) if ours_ok else None, "parts": parts,
+                     "setup_env_steps": {n: r["step"] for n, r in setup_r.items()},
+                     "device": ", ".join(sorted({r["device"] for r in setup_r.values()})),
+                     "status": status(pol_notes + data_notes
+                                      + [x for r in setup_r.values() for x in r["notes"]], ours_ok),
+                     "paper_hours": paper.TABLE3_H["ours"]})
     dqn_dir = runs_lib.find_dqn(runs, init)
     dqn = runs_lib.run_record(runs_lib.latest_checkpoint(dqn_dir) if dqn_dir else None)
     if dqn is None:

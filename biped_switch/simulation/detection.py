@@ -36,13 +36,18 @@ def blame_kind(x, art_x0, art_x1, art_kind, detect_range_m: float, after_m: floa
     return jnp.where(jnp.any(reached) & (x <= art_x1[i] + after_m), art_kind[i], -1)
 
 
-def debounce_step(reported, cand, run, kind, steps: int):
+def debounce_step(reported, cand, run, kind, steps: int, via_none: bool = False):
     """One control step of the learned detector's filter: a change of `kind` (per env, -1 none)
     is reported once the new kind has been named `steps` steps in a row; a one-step misreading
-    never switches policies. (reported, candidate, run) in and out, int32 arrays."""
+    never switches policies. With `via_none` (static), one kind never follows another directly:
+    on a track every artifact has a flat before it, so a kind named while another is reported
+    is a misreading (over a gap's hole, its far edge looks like a block). (reported, candidate,
+    run) in and out, int32 arrays."""
     same = kind == reported
     run = jnp.where(same, 0, jnp.where(kind == cand, run + 1, 1))
     cand = jnp.where(same | (kind == cand), cand, kind)
     flip = run >= steps
+    if via_none:
+        flip &= (reported < 0) | (cand < 0)
     return (jnp.where(flip, cand, reported).astype(jnp.int32), cand.astype(jnp.int32),
             jnp.where(flip, 0, run).astype(jnp.int32))

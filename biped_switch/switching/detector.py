@@ -140,6 +140,7 @@ def detect_fn(meta: dict, env):
         return decode(net.apply(params, prof), along_track_m(first_change_m(prof, rows, cfg), yaw))
 
     apply.debounce_steps = int(cfg.debounce_steps)  # the rollout's filter (switching.rules)
+    apply.via_none = bool(cfg.debounce_via_none)
     return apply
 
 

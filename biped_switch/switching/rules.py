@@ -12,6 +12,9 @@ target, and the rule decides at each control step whether the active policy hand
                  feet are within `feet_tol_m` of each other fore-aft
   estimator      when the target's switch estimator gives E(s) >= `estimator_threshold`, on
                  `persist_steps` control steps in a row (1, the paper's rule: the first such step)
+With setup policies (ours: switching/setup.py), a pair (active -> target) that has one switches
+into it as soon as the target is detected, and the setup policy hands over to the target's policy
+at its own hand-over distance (the one it was trained with), whatever the method.
 Every method is forced to switch once the artifact is `force_switch_m` (1 cm) away, so a rule
 that never fires (and a distance stepped over between control steps) still switches in time.
 While nothing is detected the active policy keeps control; an artifact policy also walks the
@@ -52,10 +55,49 @@ class Rules(NamedTuple):
     margin_m: jax.Array  # CoM may be this far outside the support polygon [m]
     switch_max_m: jax.Array  # random method: U(0, switch_max_m)
     persist_steps: jax.Array  # int32: estimator: E >= threshold this many control steps in a row
+    setup_of: jax.Array  # (P, N_TARGETS) int32: the setup policy for active -> target (-1: none)
+    is_setup: jax.Array  # (P,) bool: the policy is a setup policy (it hands over at handover_m)
+    handover_m: jax.Array  # (N_TARGETS,) a setup policy hands over this far before the target [m]
+
+
+class SetupSlots(NamedTuple):
+    """Where setup policies sit in a suite (host-side, resolved once): `setup_of` (P, N_TARGETS)
+    the suite index of the setup policy for (active policy, target kind), -1 where the pair has
+    none; `handover_m` (N_TARGETS,) each target's hand-over distance [m] (NaN: no setup policy)."""
+
+    setup_of: np.ndarray
+    handover_m: np.ndarray
+
+
+def setup_slots(names, setups: dict) -> SetupSlots:
+    """SetupSlots of a suite whose policies are `names` (POLICY_NAMES, then setup policies), from
+    `setups` {setup policy name: (target kind, source policy names, hand-over distance [m])}."""
+    names = list(names)
+    if names[:N_POLICIES] != list(pol.POLICY_NAMES):
+        raise ValueError(f"a suite with setup policies starts with {pol.POLICY_NAMES}, got {names}")
+    setup_of = np.full((len(names), N_TARGETS), -1, np.int32)
+    handover = np.full(N_TARGETS, np.nan, np.float32)
+    for name, (target, sources, handover_m) in setups.items():
+        if name not in names:
+            raise ValueError(f"setup policy {name!r} is not in the suite {names}")
+        if target not in ARTIFACT_KINDS:
+            raise ValueError(f"{name}: target {target!r} is not one of {ARTIFACT_KINDS}")
+        if not 0.0 < float(handover_m) < 0.9:
+            raise ValueError(f"{name}: hand-over distance {handover_m!r} m is outside (0, 0.9) m, "
+                             f"the detection range")
+        k = ARTIFACT_KINDS.index(target)
+        for src in sources:
+            if src not in pol.POLICY_NAMES:
+                raise ValueError(f"{name}: source {src!r} is not one of {pol.POLICY_NAMES}")
+            setup_of[pol.POLICY_INDEX[src], k] = names.index(name)
+        handover[k] = float(handover_m)
+    return SetupSlots(setup_of, handover)
 
 
 def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9,
-               persist_steps: int | None = None) -> Rules:
+               persist_steps: int | None = None, setup: SetupSlots | None = None) -> Rules:
+    """Traced rules of `method`; `setup`: the suite's setup policies (None: a suite of the four
+    behaviour policies, no setup)."""
     if method not in METHOD_INDEX:
         raise ValueError(f"unknown switching method {method!r}; expected one of {METHODS}")
     cfg = cfg or default_switching_config()
@@ -77,10 +119,20 @@ def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9,
     persist = int(cfg.estimator_persist_steps if persist_steps is None else persist_steps)
     if persist < 1:
         raise ValueError(f"persist_steps must be >= 1 (1: the paper's rule), got {persist}")
+    if setup is None:
+        setup = SetupSlots(np.full((N_POLICIES, N_TARGETS), -1, np.int32),
+                           np.full(N_TARGETS, np.nan, np.float32))
+    n_suite = setup.setup_of.shape[0]
+    is_setup = np.zeros(n_suite, bool)
+    is_setup[N_POLICIES:] = True
+    # a setup policy's row of the lookup is never read (it hands over at its own distance)
+    lookup_m = np.concatenate([lookup_m, np.zeros((n_suite - N_POLICIES, N_TARGETS), np.float32)])
     f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
     return Rules(jnp.asarray(METHOD_INDEX[method], jnp.int32), jnp.asarray(np.nan_to_num(lookup_m)),
                  f32(cfg.estimator_threshold), f32(cfg.force_switch_m), f32(cfg.feet_tol_m),
-                 f32(cfg.support_margin_m), f32(switch_max_m), jnp.asarray(persist, jnp.int32))
+                 f32(cfg.support_margin_m), f32(switch_max_m), jnp.asarray(persist, jnp.int32),
+                 jnp.asarray(setup.setup_of, jnp.int32), jnp.asarray(is_setup),
+                 f32(np.nan_to_num(setup.handover_m)))
 
 
 class SwitchState(NamedTuple):
@@ -102,14 +154,14 @@ def init_state(n_envs: int) -> SwitchState:
     return SwitchState(zi, mi, jnp.zeros(n_envs, jnp.float32), zi, zi, zi, mi, mi, zi)
 
 
-def learned_detection(ss: SwitchState, kind: jax.Array, steps: int):
+def learned_detection(ss: SwitchState, kind: jax.Array, steps: int, via_none: bool = False):
     """One control step of a learned detector's output as the rules read it: (new state, kind,
     index). A change of kind is held back until it has been named `steps` control steps in a row
     (a one-step misreading never switches policies). The oracle indexes artifacts by their slot
     on the track; a learned detector sees no track, so an artifact is a new one whenever the
     reported kind starts naming something after nothing (index: those onsets counted, -1 while
-    nothing is named)."""
-    rep, cand, run = debounce_step(ss.det_kind, ss.det_cand, ss.det_run, kind, steps)
+    nothing is named). `via_none`: a new kind only after none (`detection.debounce_step`)."""
+    rep, cand, run = debounce_step(ss.det_kind, ss.det_cand, ss.det_run, kind, steps, via_none)
     count = ss.det_count + ((rep >= 0) & (ss.det_kind < 0)).astype(jnp.int32)
     ss = ss._replace(det_kind=rep, det_cand=cand, det_run=run, det_count=count)
     return ss, rep, jnp.where(rep >= 0, count, -1)
@@ -184,7 +236,13 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
         com_ok,
         est_run >= rules.persist_steps,
     ])[rules.method]
-    switch = pending & (fire | (det_dist_m <= rules.force_m))
+    # setup policies: into one at detection (unless already inside its hand-over distance), out
+    # of one into the target's policy at the hand-over distance
+    setup = rules.setup_of[ss.active, kind]
+    into_setup = pending & (setup >= 0) & (det_dist_m > rules.handover_m[kind])
+    fire = jnp.where(rules.is_setup[ss.active], det_dist_m <= rules.handover_m[kind], fire)
+    switch = pending & (into_setup | fire | (det_dist_m <= rules.force_m))
+    target = jnp.where(into_setup, setup, target)
     new = ss._replace(active=jnp.where(switch, target, ss.active).astype(jnp.int32),
                       art_index=jnp.where(seen, det_index, ss.art_index).astype(jnp.int32),
                       random_m=random_m, n_switches=ss.n_switches + switch.astype(jnp.int32),
@@ -223,7 +281,8 @@ def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules
             index = det["index"]
         else:
             ss, kind, index = learned_detection(ss, det["kind"],
-                                                getattr(det_apply, "debounce_steps", 1))
+                                                getattr(det_apply, "debounce_steps", 1),
+                                                getattr(det_apply, "via_none", False))
             det = ci["detect"] = {**det, "kind": kind,
                                   "dist_m": jnp.where(kind >= 0, det["dist_m"], jnp.inf)}
         n_before = ss.n_switches
