@@ -358,6 +358,16 @@ SETUP_TARGETS = {
 }
 
 
+# The setup policies the switching controller uses (`lookup_context_setup`): those of the pairs
+# whose overlap is thin. setup_stairs was trained and measured against no setup on held-out
+# two-artifact tracks and did not help (jumps -> stairs 98.4% against 98.8%), so it is not one.
+SETUP_SUITE = ("setup_gaps",)
+# Pairs whose source policy is its own best setup (measured on the same held-out tracks: no setup,
+# the source walking on to 0.45 m, 98.8% into stairs from jumps and from gaps): the controller
+# keeps the source acting until the hand-over instead of switching at the lookup's distance.
+SETUP_WALK_ON = {"stairs": {"sources": ("jumps", "gaps"), "handover_m": 0.45}}
+
+
 def default_setup_config(target: str = "gaps") -> config_dict.ConfigDict:
     """A setup policy's training run (switching/setup.py): the train config of a
     behaviour policy (`default_train_config("cpu")`) with a `setup` section. The learner acts

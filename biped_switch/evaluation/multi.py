@@ -32,12 +32,13 @@ from biped_switch.switching import detector as det_lib
 from biped_switch.switching import lookup
 from biped_switch.switching import rules as sw
 from biped_switch.simulation import terrain
-from biped_switch.config import MULTI_TRACK_SEED, default_terrain_config
+from biped_switch.config import (MULTI_TRACK_SEED, SETUP_SUITE, SETUP_WALK_ON,
+                                 default_terrain_config)
 from biped_switch.simulation.rollout import over_devices
 from biped_switch.stats import episode_table, join_rows
 
 from biped_switch.names import (BASELINES, CONTEXT_METHODS, MULTI_METHODS,  # noqa: E402,F401
-                                SETUP_METHODS, SETUP_POLICY_NAMES, SWITCH_METHODS)
+                                SETUP_METHODS, SWITCH_METHODS)
 PERSIST_STEPS = sweep.N_WINDOW
 
 
@@ -53,12 +54,13 @@ def base_method(method: str) -> str:
     return method.removesuffix("_setup") if method in SETUP_METHODS else method
 
 
-def find_setup_policies(init: str, runs) -> dict:
+def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
     """{setup policy name: (target kind, source policy names, hand-over distance [m])} of the
-    trained setup policies of an init mode (`train --policy setup_<target>`), each as its run's
-    config says it was trained: the sources it takes over from and the distance it hands over at."""
+    trained setup policies `names` of an init mode (`train --policy setup_<target>`; default: the
+    controller's, config.SETUP_SUITE), each as its run's config says it was trained: the sources
+    it takes over from and the distance it hands over at."""
     found = {}
-    for name in SETUP_POLICY_NAMES:
+    for name in names:
         ckpt = runs_lib.find_policy(name, init, runs)
         if ckpt is None:
             continue
@@ -191,7 +193,9 @@ class MultiSetup:
         det_apply, self.det_params, self.detector = load_detector(detector_dir, self.env)
         self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in, names=names)
         self.policy_names = names
-        self.setup = sw.setup_slots(names, setups) if setups else None
+        walk_on = {k: (tuple(v["sources"]), float(v["handover_m"]))
+                   for k, v in SETUP_WALK_ON.items()} if with_setup else {}
+        self.setup = sw.setup_slots(names, setups, walk_on) if setups else None
         self.est_apply, self.est_params, self.est_meta = None, None, None
         if need_estimators:
             self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
@@ -227,6 +231,9 @@ class MultiSetup:
             self.parts.setdefault("setup", []).append(
                 f"{name}: {sources} -> {target}, hand-over at {handover_m:g} m: "
                 f"{self.suite.sources[names.index(name)]}")
+        for target, (sources, handover_m) in walk_on.items():
+            self.parts.setdefault("setup", []).append(
+                f"walk on: {sources} -> {target}, the source acts to {handover_m:g} m")
         self.horizon = int(round(horizon_s / self.env.dt))
 
         env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon

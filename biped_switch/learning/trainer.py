@@ -40,6 +40,7 @@ from biped_switch.learning import ppo
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import TRAIN_TRACK_SEED
+from biped_switch.paths import rel
 from biped_switch.learning.policies import POLICY_NAMES
 from biped_switch.simulation.rollout import rollout, summarize
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
@@ -142,8 +143,9 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         logger.drop_after(step)
         print_fn(f"resuming {run_dir} at step {step:,} ({ckpt.name}), curriculum {cs.as_dict()}")
     elif cfg.warm_start:
-        cfg.warm_start = str(runs_lib.resolve_checkpoint(cfg.warm_start, run_dir.parent))
-        warm, prog = restore(pathlib.Path(cfg.warm_start), ts)
+        ckpt = runs_lib.resolve_checkpoint(cfg.warm_start, run_dir.parent)
+        cfg.warm_start = rel(ckpt)  # repo-relative: the same record on every machine
+        warm, prog = restore(ckpt, ts)
         ts = ts._replace(params=warm.params, norm=warm.norm)  # fresh optimiser moments
         print_fn(f"warm start from {cfg.warm_start} (step {prog['step']:,})")
     if writer:

@@ -55,7 +55,8 @@ From `experiments/results/table2/table2.md`: {{t2_trials}} random {{t2_artifacts
 {{t2_horizon}} s, no guides, no pushes, the stand-init suite (the random-init suite for
 `estimator_no_overlap`); `python -m biped_switch.evaluate multi --trials {{t2_trials_arg}}`. The failure columns
 are % of trials that end in a fall on that artifact kind. `lookup_context`, `estimator_context` and
-`estimator_context_persist` are ours (context sweeps, docs/switching.md); `end_to_end` here is the
+`estimator_context_persist` are ours (context sweeps, docs/switching.md), and `lookup_context_setup`
+is `lookup_context` with the setup policies (docs/switching.md, "Setup policies"); `end_to_end` here is the
 curriculum-final policy ({{e2e_steps}} env steps) and `dqn` the {{dqn_steps}}-env-step selector.
 
 {{include table2/table2.md}}
@@ -145,12 +146,20 @@ From `experiments/results/detector/detector.md` (`python -m biped_switch.detecto
 ## Table II with the learned detector (ours)
 
 From `experiments/results/table2_learned_detector/table2.md` (`python -m biped_switch.evaluate multi
---methods lookup_context --detector learned --out experiments/results/table2_learned_detector`):
+--methods lookup_context dqn lookup_context_setup --detector learned --out experiments/results/table2_learned_detector`):
 Table II's tracks, seeds, horizon and batch, with the learned detector in place of the oracle.
 
 {{include table2_learned_detector/table2.md +1}}
 
 {{include table2_learned_detector/failures_by_context.md +1}}
+
+## Setup policies (ours)
+
+From `experiments/results/setup/setup.md` (`python -m biped_switch.switching.setup eval --full-tracks
+[--target stairs] --setup <policy or source> --out experiments/results/setup/<name>.json`, then
+`python -m biped_switch.reports.setup`): each pair on held-out two-artifact tracks.
+
+{{include setup/setup.md +1}}
 
 ## Action space: torque against PD targets
 
@@ -172,7 +181,8 @@ refreshed by `python -m biped_switch.demo --refresh-example`):
   [random](../experiments/results/lookup/fig4b_random.png), [stand, context sweep](../experiments/results/lookup/fig4b_stand_context.png).
 - Fig. 5, one trial over time: [estimator](../experiments/results/table2/fig5_trial0.png),
   [context estimator](../experiments/results/table2/fig5_trial0_context.png),
-  [context estimator, 5-step run](../experiments/results/table2/fig5_trial0_context_persist.png).
+  [context estimator, 5-step run](../experiments/results/table2/fig5_trial0_context_persist.png),
+  [setup policies, setup phases marked](../experiments/results/table2/fig5_trial0_lookup_context_setup.png).
 - Estimator training curves: `experiments/results/estimators/<init>_<target>.png`; metrics in the
   `.json` beside each (docs/switching.md tabulates them).
 """
@@ -228,6 +238,11 @@ def table3_md(doc: dict, e2e_steps: str) -> str:
                     f"runs), sweeps {' + '.join(_hours(parts[f'sweep {k}']) for k in kinds)} "
                     f"({', '.join(kinds)}), estimators "
                     f"{' + '.join(_hours(parts[f'estimator {k}']) for k in kinds)}")
+        elif r["method"] == "ours_setup":
+            steps = r.get("setup_env_steps", {})
+            text = "ours, plus " + ", ".join(
+                f"{k} {_hours(v)} ({steps[k] / 1e6:.2f}M env steps)" if k in steps else
+                f"{k} {_hours(v)}" for k, v in parts.items() if k.startswith("setup_"))
         elif r["method"] == "end_to_end":
             text = f"policy {_hours(parts['policy'])} ({e2e_steps} env steps)"
         else:

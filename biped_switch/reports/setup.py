@@ -1,6 +1,9 @@
 """Setup policies measured on held-out two-artifact tracks (`python -m biped_switch.switching.setup
 eval --out experiments/results/setup/<name>.json`), as one Markdown table per target. Plain
-Python, no JAX."""
+Python, no JAX.
+
+    python -m biped_switch.reports.setup [--results experiments/results/setup]   # writes setup.md
+"""
 
 from __future__ import annotations
 
@@ -69,3 +72,19 @@ def write_report(folder: pathlib.Path) -> pathlib.Path:
     out = folder / "setup.md"
     out.write_text(setup_markdown(docs) + "\n")
     return out
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m biped_switch.reports.setup",
+                                description="setup.md from the setup evaluations in a folder")
+    p.add_argument("--results", default="experiments/results/setup",
+                   help="the folder of evaluation JSONs (`switching.setup eval --out`)")
+    a = p.parse_args(argv)
+    print(write_report(pathlib.Path(a.results)).read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -15,7 +15,8 @@ import numpy as np
 from biped_switch import paper
 from biped_switch.reports import provenance as prov
 from biped_switch.learning import runs as runs_lib
-from biped_switch.names import ARTIFACT_KINDS, SETUP_POLICY_NAMES
+from biped_switch.config import SETUP_SUITE
+from biped_switch.names import ARTIFACT_KINDS
 
 
 def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand") -> dict:
@@ -71,7 +72,7 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
     # adding a behaviour adds at most its own setup policy and retrains those whose sources
     # it joins: still linear in behaviours, where the DQN and end-to-end retrain on everything)
     setup_r = {n: runs_lib.run_record(runs_lib.find_policy(n, init, runs))
-               for n in SETUP_POLICY_NAMES}
+               for n in SETUP_SUITE}
     setup_r = {n: r for n, r in setup_r.items() if r is not None}
     if setup_r:
         parts = {**ours_parts, **{n: r["wall_s"] / 3600 for n, r in setup_r.items()}}

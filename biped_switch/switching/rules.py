@@ -14,7 +14,8 @@ target, and the rule decides at each control step whether the active policy hand
                  `persist_steps` control steps in a row (1, the paper's rule: the first such step)
 With setup policies (ours: switching/setup.py), a pair (active -> target) that has one switches
 into it as soon as the target is detected, and the setup policy hands over to the target's policy
-at its own hand-over distance (the one it was trained with), whatever the method.
+at its own hand-over distance (the one it was trained with), whatever the method; a walk-on pair
+(its source is its own best setup) keeps the source acting to that distance.
 Every method is forced to switch once the artifact is `force_switch_m` (1 cm) away, so a rule
 that never fires (and a distance stepped over between control steps) still switches in time.
 While nothing is detected the active policy keeps control; an artifact policy also walks the
@@ -69,9 +70,11 @@ class SetupSlots(NamedTuple):
     handover_m: np.ndarray
 
 
-def setup_slots(names, setups: dict) -> SetupSlots:
+def setup_slots(names, setups: dict, walk_on: dict | None = None) -> SetupSlots:
     """SetupSlots of a suite whose policies are `names` (POLICY_NAMES, then setup policies), from
-    `setups` {setup policy name: (target kind, source policy names, hand-over distance [m])}."""
+    `setups` {setup policy name: (target kind, source policy names, hand-over distance [m])} and
+    `walk_on` {target kind: (source policy names, hand-over distance [m])}: pairs whose source
+    policy is its own best setup, walking on to the hand-over (`setup_of` names the source)."""
     names = list(names)
     if names[:N_POLICIES] != list(pol.POLICY_NAMES):
         raise ValueError(f"a suite with setup policies starts with {pol.POLICY_NAMES}, got {names}")
@@ -90,6 +93,15 @@ def setup_slots(names, setups: dict) -> SetupSlots:
             if src not in pol.POLICY_NAMES:
                 raise ValueError(f"{name}: source {src!r} is not one of {pol.POLICY_NAMES}")
             setup_of[pol.POLICY_INDEX[src], k] = names.index(name)
+        handover[k] = float(handover_m)
+    for target, (sources, handover_m) in (walk_on or {}).items():
+        k = ARTIFACT_KINDS.index(target)
+        if not 0.0 < float(handover_m) < 0.9 or not np.isnan(handover[k]) and (
+                handover[k] != np.float32(handover_m)):
+            raise ValueError(f"walk-on into {target}: hand-over {handover_m!r} m is outside "
+                             f"(0, 0.9) m or differs from its setup policy's")
+        for src in sources:
+            setup_of[pol.POLICY_INDEX[src], k] = pol.POLICY_INDEX[src]
         handover[k] = float(handover_m)
     return SetupSlots(setup_of, handover)
 
@@ -239,8 +251,10 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
     # setup policies: into one at detection (unless already inside its hand-over distance), out
     # of one into the target's policy at the hand-over distance
     setup = rules.setup_of[ss.active, kind]
-    into_setup = pending & (setup >= 0) & (det_dist_m > rules.handover_m[kind])
-    fire = jnp.where(rules.is_setup[ss.active], det_dist_m <= rules.handover_m[kind], fire)
+    walk_on = setup == ss.active  # the source is its own setup: it walks on to the hand-over
+    into_setup = pending & (setup >= 0) & ~walk_on & (det_dist_m > rules.handover_m[kind])
+    hand_over = rules.is_setup[ss.active] | walk_on
+    fire = jnp.where(hand_over, det_dist_m <= rules.handover_m[kind], fire)
     switch = pending & (into_setup | fire | (det_dist_m <= rules.force_m))
     target = jnp.where(into_setup, setup, target)
     new = ss._replace(active=jnp.where(switch, target, ss.active).astype(jnp.int32),

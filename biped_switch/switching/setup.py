@@ -345,11 +345,9 @@ def evaluate(senv: SetupEnv, policy, n: int, rng_seed: int = 0, horizon: int = 1
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.switching.setup",
                                 description=__doc__.split("\n")[0])
-    p.add_argument("what", choices=("baseline", "eval", "report"),
-                   help="eval: a setup policy (or a baseline) on held-out tracks; report: "
-                        "setup.md from the evaluations in --results")
-    p.add_argument("--results", default="experiments/results/setup",
-                   help="report: the folder of evaluation JSONs (eval --out) to tabulate")
+    p.add_argument("what", choices=("baseline", "eval"),
+                   help="a setup policy (or a baseline) on held-out tracks (tabulated by `python "
+                        "-m biped_switch.reports.setup`)")
     p.add_argument("--target", default="gaps", choices=terrain.ARTIFACT_KINDS)
     p.add_argument("--setup", default="walk_stand",
                    help="the setup policy: a run name (runs/, models/policies/) or checkpoint; "
@@ -363,11 +361,6 @@ def main(argv=None) -> int:
                         "1 m finish: closer to Table II's tracks than the short training ones")
     p.add_argument("--out", default=None, help="write the result JSON here")
     a = p.parse_args(argv)
-    if a.what == "report":
-        from biped_switch.reports.setup import write_report
-        out = write_report(pathlib.Path(a.results))
-        print(out.read_text())
-        return 0
     from biped_switch.learning import runs as runs_lib
     cfg = default_setup_config(a.target)
     if a.handover_m is not None:
