@@ -5,7 +5,6 @@ ARTIFACT_KINDS = ("jumps", "gaps", "stairs")  # index = artifact code used in ar
 TERRAIN_KINDS = ("walk",) + ARTIFACT_KINDS + ("mixed",)  # track kinds the terrain generator lays
 POLICY_NAMES = ("walk",) + ARTIFACT_KINDS  # index = artifact code + 1
 POLICY_INDEX = {n: i for i, n in enumerate(POLICY_NAMES)}
-SETUP_POLICY_NAMES = tuple(f"setup_{k}" for k in ARTIFACT_KINDS)  # setup_<target> (ours)
 TRAIN_KINDS = POLICY_NAMES + ("mixed",)  # what `train --policy` accepts (mixed: end-to-end)
 INITS = ("stand", "random")  # the start of every episode: standing pose, or random joints
 BACKENDS = ("mujoco", "mjx")  # C engine (fast on a CPU) | MJX (an accelerator)

@@ -14,8 +14,7 @@ import jax
 from biped_switch import cli
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import runs as runs_lib
-from biped_switch.config import default_train_config
-from biped_switch.names import SETUP_POLICY_NAMES
+from biped_switch.config import SETUP_TARGETS, default_train_config
 from biped_switch.learning import trainer
 from biped_switch.reports import curves
 from biped_switch.switching import setup as setup_lib
@@ -24,7 +23,7 @@ from biped_switch.switching import setup as setup_lib
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.train", description=__doc__.split("\n")[0])
-    p.add_argument("--policy", default="walk", choices=trainer.TRAIN_KINDS + SETUP_POLICY_NAMES,
+    p.add_argument("--policy", default="walk", choices=trainer.TRAIN_KINDS + tuple(f"setup_{k}" for k in SETUP_TARGETS),
                    help="a behaviour policy, mixed: the end-to-end baseline, or setup_<target>: "
                         "a setup policy (switching/setup.py; its recipe: config.default_setup_config)")
     cli.add_init(p)

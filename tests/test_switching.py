@@ -230,22 +230,22 @@ def test_setup_skipped_when_detected_inside_hand_over():
 
 
 def test_walk_on_pairs_keep_the_source_to_the_hand_over():
-    """A walk-on pair (jumps -> stairs at 0.45 m): one switch, straight into stairs at 0.45 m
-    whatever the lookup says; other sources keep the lookup's distance."""
+    """A walk-on pair (jumps -> stairs at 0.45 m) is a lookup entry: one switch, straight into
+    stairs at 0.45 m whatever the table said; other sources keep the table's distance."""
     slots = sw.setup_slots(("walk", "jumps", "gaps", "stairs", "setup_gaps"),
-                           {"setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)},
-                           {"stairs": (("jumps",), 0.45)})
-    assert slots.setup_of[1, 2] == 1 and slots.setup_of[2, 2] == -1
-    lookup = np.full((4, 3), 0.8)
+                           {"setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)})
+    lookup = sw.walk_on_lookup(np.full((4, 3), 0.8), {"stairs": (("jumps",), 0.45)}, slots)
+    assert lookup[1, 2] == np.float32(0.45) and lookup[2, 2] == np.float32(0.8)
     kinds = np.where(DISTS <= 0.9, 2, -1)  # stairs (code 2 -> policy 3)
     steps, actives, _ = _run("lookup", DISTS, kinds, lookup=lookup, active0=1, setup=slots)
     assert len(steps) == 1 and actives[steps[0]] == 3
     assert DISTS[steps[0]] <= 0.45 < DISTS[steps[0] - 1]
     steps, _, _ = _run("lookup", DISTS, kinds, lookup=lookup, active0=2, setup=slots)
     assert len(steps) == 1 and DISTS[steps[0]] <= 0.8 < DISTS[steps[0] - 1]
-    with pytest.raises(ValueError, match="differs"):
-        sw.setup_slots(("walk", "jumps", "gaps", "stairs", "setup_gaps"),
-                       {"setup_gaps": ("gaps", ("jumps",), 0.45)}, {"gaps": (("walk",), 0.3)})
+    with pytest.raises(ValueError, match="also has a setup policy"):
+        sw.walk_on_lookup(np.zeros((4, 3)), {"gaps": (("jumps",), 0.45)}, slots)
+    with pytest.raises(ValueError, match="1.2"):
+        sw.walk_on_lookup(np.zeros((4, 3)), {"stairs": (("jumps",), 1.2)})
 
 
 def test_make_rules_errors():

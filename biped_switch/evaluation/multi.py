@@ -193,9 +193,9 @@ class MultiSetup:
         det_apply, self.det_params, self.detector = load_detector(detector_dir, self.env)
         self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in, names=names)
         self.policy_names = names
-        walk_on = {k: (tuple(v["sources"]), float(v["handover_m"]))
-                   for k, v in SETUP_WALK_ON.items()} if with_setup else {}
-        self.setup = sw.setup_slots(names, setups, walk_on) if setups else None
+        self.walk_on = {k: (tuple(v["sources"]), float(v["handover_m"]))
+                        for k, v in SETUP_WALK_ON.items()} if with_setup else {}
+        self.setup = sw.setup_slots(names, setups) if setups else None
         self.est_apply, self.est_params, self.est_meta = None, None, None
         if need_estimators:
             self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
@@ -231,7 +231,7 @@ class MultiSetup:
             self.parts.setdefault("setup", []).append(
                 f"{name}: {sources} -> {target}, hand-over at {handover_m:g} m: "
                 f"{self.suite.sources[names.index(name)]}")
-        for target, (sources, handover_m) in walk_on.items():
+        for target, (sources, handover_m) in self.walk_on.items():
             self.parts.setdefault("setup", []).append(
                 f"walk on: {sources} -> {target}, the source acts to {handover_m:g} m")
         self.horizon = int(round(horizon_s / self.env.dt))
@@ -252,9 +252,12 @@ class MultiSetup:
         """(switching rules, estimator params) of Table II method `method` (a switching.METHODS
         rule, or a context variant with its own estimators, lookup or persistence)."""
         var = self.variants.get(base_method(method), {})
-        rules = sw.make_rules(switch_rule(method), lookup_m=var.get("lookup_m", self.lookup_m),
-                              persist_steps=var.get("persist_steps"),
-                              setup=self.setup if method in SETUP_METHODS else None)
+        lookup_m, setup = var.get("lookup_m", self.lookup_m), None
+        if method in SETUP_METHODS:
+            setup = self.setup
+            lookup_m = sw.walk_on_lookup(lookup_m, self.walk_on, setup)
+        rules = sw.make_rules(switch_rule(method), lookup_m=lookup_m,
+                              persist_steps=var.get("persist_steps"), setup=setup)
         return rules, var.get("est_params", self.est_params)
 
     def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:

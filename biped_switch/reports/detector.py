@@ -20,6 +20,13 @@ def confusion(true_kind: np.ndarray, kind: np.ndarray) -> np.ndarray:
     return m
 
 
+def episodes(data: dict):
+    """Each episode's row indices of `data`, in step order (the data may interleave episodes)."""
+    for e in np.unique(data["episode"]):
+        idx = np.flatnonzero(data["episode"] == e)
+        yield idx[np.argsort(data["step"][idx])]
+
+
 def onsets(data: dict, kind: np.ndarray, detect_range_m: float = 0.9,
            window_m: float = 1.5) -> dict:
     """Per approach to an artifact (an oracle onset: none -> a kind within one episode): the
@@ -27,10 +34,8 @@ def onsets(data: dict, kind: np.ndarray, detect_range_m: float = 0.9,
     detector names the right kind, and whether it named a wrong kind first. Detection-distance
     error [cm] = that distance - the oracle's (its first step in range, <= `detect_range_m`)."""
     err, wrong, missed, linger = [], 0, 0, 0
-    ep, tk, dist = data["episode"], data["kind"], data["dist_m"]
-    for e in np.unique(ep):
-        idx = np.flatnonzero(ep == e)
-        idx = idx[np.argsort(data["step"][idx])]
+    tk, dist = data["kind"], data["dist_m"]
+    for idx in episodes(data):
         k, d, p = tk[idx], dist[idx], kind[idx]
         starts = np.flatnonzero((k[1:] >= 0) & (k[:-1] < 0)) + 1
         for s in starts:
@@ -69,9 +74,7 @@ def debounce(data: dict, kind: np.ndarray, steps: int, via_none: bool = False) -
     with `via_none`, a kind never directly follows another. Missing steps (the data keeps every
     n-th) count as one."""
     out = np.empty_like(kind)
-    for e in np.unique(data["episode"]):
-        idx = np.flatnonzero(data["episode"] == e)
-        idx = idx[np.argsort(data["step"][idx])]
+    for idx in episodes(data):
         rep, cand, run = -1, -1, 0
         for i in idx:
             k = int(kind[i])
@@ -97,9 +100,7 @@ def detector_metrics(data: dict, kind: np.ndarray, dist: np.ndarray, band_m=(0.0
     # every change of the reported kind into a kind the oracle is not naming then (on or before
     # an artifact): each one switches into a wrong policy
     wrong_onsets = 0
-    for ep in np.unique(data["episode"]):
-        idx = np.flatnonzero(data["episode"] == ep)
-        idx = idx[np.argsort(data["step"][idx])]
+    for idx in episodes(data):
         k = kind[idx]
         ch = np.flatnonzero(k[1:] != k[:-1]) + 1
         wrong_onsets += int(np.sum((k[ch] >= 0) & (k[ch] != tk[idx][ch])))

@@ -14,8 +14,8 @@ target, and the rule decides at each control step whether the active policy hand
                  `persist_steps` control steps in a row (1, the paper's rule: the first such step)
 With setup policies (ours: switching/setup.py), a pair (active -> target) that has one switches
 into it as soon as the target is detected, and the setup policy hands over to the target's policy
-at its own hand-over distance (the one it was trained with), whatever the method; a walk-on pair
-(its source is its own best setup) keeps the source acting to that distance.
+at its own hand-over distance (the one it was trained with), whatever the method. A walk-on pair
+(its source is its own best setup) is only a lookup entry: the source acts to that distance.
 Every method is forced to switch once the artifact is `force_switch_m` (1 cm) away, so a rule
 that never fires (and a distance stepped over between control steps) still switches in time.
 While nothing is detected the active policy keeps control; an artifact policy also walks the
@@ -56,8 +56,8 @@ class Rules(NamedTuple):
     margin_m: jax.Array  # CoM may be this far outside the support polygon [m]
     switch_max_m: jax.Array  # random method: U(0, switch_max_m)
     persist_steps: jax.Array  # int32: estimator: E >= threshold this many control steps in a row
-    setup_of: jax.Array  # (P, N_TARGETS) int32: the setup policy for active -> target (-1: none)
-    is_setup: jax.Array  # (P,) bool: the policy is a setup policy (it hands over at handover_m)
+    setup_of: jax.Array  # (P, N_TARGETS) int32: the setup policy for active -> target (-1: none);
+    # policies from index N_POLICIES on are setup policies
     handover_m: jax.Array  # (N_TARGETS,) a setup policy hands over this far before the target [m]
 
 
@@ -70,11 +70,15 @@ class SetupSlots(NamedTuple):
     handover_m: np.ndarray
 
 
-def setup_slots(names, setups: dict, walk_on: dict | None = None) -> SetupSlots:
+def _check_handover(what: str, handover_m) -> None:
+    if not 0.0 < float(handover_m) < 0.9:
+        raise ValueError(f"{what}: hand-over distance {handover_m!r} m is outside (0, 0.9) m, the "
+                         f"detection range")
+
+
+def setup_slots(names, setups: dict) -> SetupSlots:
     """SetupSlots of a suite whose policies are `names` (POLICY_NAMES, then setup policies), from
-    `setups` {setup policy name: (target kind, source policy names, hand-over distance [m])} and
-    `walk_on` {target kind: (source policy names, hand-over distance [m])}: pairs whose source
-    policy is its own best setup, walking on to the hand-over (`setup_of` names the source)."""
+    `setups` {setup policy name: (target kind, source policy names, hand-over distance [m])}."""
     names = list(names)
     if names[:N_POLICIES] != list(pol.POLICY_NAMES):
         raise ValueError(f"a suite with setup policies starts with {pol.POLICY_NAMES}, got {names}")
@@ -85,25 +89,32 @@ def setup_slots(names, setups: dict, walk_on: dict | None = None) -> SetupSlots:
             raise ValueError(f"setup policy {name!r} is not in the suite {names}")
         if target not in ARTIFACT_KINDS:
             raise ValueError(f"{name}: target {target!r} is not one of {ARTIFACT_KINDS}")
-        if not 0.0 < float(handover_m) < 0.9:
-            raise ValueError(f"{name}: hand-over distance {handover_m!r} m is outside (0, 0.9) m, "
-                             f"the detection range")
+        _check_handover(name, handover_m)
         k = ARTIFACT_KINDS.index(target)
         for src in sources:
             if src not in pol.POLICY_NAMES:
                 raise ValueError(f"{name}: source {src!r} is not one of {pol.POLICY_NAMES}")
             setup_of[pol.POLICY_INDEX[src], k] = names.index(name)
         handover[k] = float(handover_m)
-    for target, (sources, handover_m) in (walk_on or {}).items():
-        k = ARTIFACT_KINDS.index(target)
-        if not 0.0 < float(handover_m) < 0.9 or not np.isnan(handover[k]) and (
-                handover[k] != np.float32(handover_m)):
-            raise ValueError(f"walk-on into {target}: hand-over {handover_m!r} m is outside "
-                             f"(0, 0.9) m or differs from its setup policy's")
-        for src in sources:
-            setup_of[pol.POLICY_INDEX[src], k] = pol.POLICY_INDEX[src]
-        handover[k] = float(handover_m)
     return SetupSlots(setup_of, handover)
+
+
+def walk_on_lookup(lookup_m, walk_on: dict, setup: SetupSlots | None = None) -> np.ndarray:
+    """The (N_POLICIES, N_TARGETS) lookup table with each walk-on pair's entry set to its
+    hand-over distance: `walk_on` {target kind: (source policy names, hand-over distance [m])},
+    pairs whose source is its own best setup and acts on to that distance. A pair that also has
+    a setup policy in `setup` is an error (which of the two would act?)."""
+    out = (np.zeros((N_POLICIES, N_TARGETS), np.float32) if lookup_m is None
+           else np.array(lookup_m, np.float32, copy=True))
+    for target, (sources, handover_m) in walk_on.items():
+        _check_handover(f"walk-on into {target}", handover_m)
+        k = ARTIFACT_KINDS.index(target)
+        for src in sources:
+            j = pol.POLICY_INDEX[src]
+            if setup is not None and setup.setup_of[j, k] >= 0:
+                raise ValueError(f"walk-on pair {src} -> {target} also has a setup policy")
+            out[j, k] = float(handover_m)
+    return out
 
 
 def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9,
@@ -134,17 +145,14 @@ def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9,
     if setup is None:
         setup = SetupSlots(np.full((N_POLICIES, N_TARGETS), -1, np.int32),
                            np.full(N_TARGETS, np.nan, np.float32))
-    n_suite = setup.setup_of.shape[0]
-    is_setup = np.zeros(n_suite, bool)
-    is_setup[N_POLICIES:] = True
     # a setup policy's row of the lookup is never read (it hands over at its own distance)
-    lookup_m = np.concatenate([lookup_m, np.zeros((n_suite - N_POLICIES, N_TARGETS), np.float32)])
+    lookup_m = np.concatenate([lookup_m, np.zeros((setup.setup_of.shape[0] - N_POLICIES,
+                                                   N_TARGETS), np.float32)])
     f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
     return Rules(jnp.asarray(METHOD_INDEX[method], jnp.int32), jnp.asarray(np.nan_to_num(lookup_m)),
                  f32(cfg.estimator_threshold), f32(cfg.force_switch_m), f32(cfg.feet_tol_m),
                  f32(cfg.support_margin_m), f32(switch_max_m), jnp.asarray(persist, jnp.int32),
-                 jnp.asarray(setup.setup_of, jnp.int32), jnp.asarray(is_setup),
-                 f32(np.nan_to_num(setup.handover_m)))
+                 jnp.asarray(setup.setup_of, jnp.int32), f32(np.nan_to_num(setup.handover_m)))
 
 
 class SwitchState(NamedTuple):
@@ -250,11 +258,9 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
     ])[rules.method]
     # setup policies: into one at detection (unless already inside its hand-over distance), out
     # of one into the target's policy at the hand-over distance
-    setup = rules.setup_of[ss.active, kind]
-    walk_on = setup == ss.active  # the source is its own setup: it walks on to the hand-over
-    into_setup = pending & (setup >= 0) & ~walk_on & (det_dist_m > rules.handover_m[kind])
-    hand_over = rules.is_setup[ss.active] | walk_on
-    fire = jnp.where(hand_over, det_dist_m <= rules.handover_m[kind], fire)
+    setup, handover_m = rules.setup_of[ss.active, kind], rules.handover_m[kind]
+    into_setup = pending & (setup >= 0) & (det_dist_m > handover_m)
+    fire = jnp.where(ss.active >= N_POLICIES, det_dist_m <= handover_m, fire)
     switch = pending & (into_setup | fire | (det_dist_m <= rules.force_m))
     target = jnp.where(into_setup, setup, target)
     new = ss._replace(active=jnp.where(switch, target, ss.active).astype(jnp.int32),

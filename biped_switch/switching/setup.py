@@ -49,7 +49,7 @@ import ml_collections
 import numpy as np
 
 from biped_switch import stats
-from biped_switch.config import default_setup_config, default_terrain_config
+from biped_switch.config import SETUP_TARGETS, default_setup_config, default_terrain_config
 from biped_switch.learning import policies as pol
 from biped_switch.simulation import env as env_lib
 from biped_switch.simulation import terrain
@@ -299,12 +299,8 @@ def is_setup_policy(policy: str) -> bool:
 
 
 def setup_train_config(policy: str):
-    """`default_setup_config` of a policy name setup_<target>."""
-    target = policy[len("setup_"):]
-    if target not in terrain.ARTIFACT_KINDS:
-        raise ValueError(f"{policy!r}: expected setup_<target>, target one of "
-                         f"{terrain.ARTIFACT_KINDS}")
-    return default_setup_config(target)
+    """`default_setup_config` of a policy name setup_<target> (it names the targets there are)."""
+    return default_setup_config(policy.removeprefix("setup_"))
 
 
 # ----------------------------------------------------------------------- evaluation
@@ -348,7 +344,7 @@ def main(argv=None) -> int:
     p.add_argument("what", choices=("baseline", "eval"),
                    help="a setup policy (or a baseline) on held-out tracks (tabulated by `python "
                         "-m biped_switch.reports.setup`)")
-    p.add_argument("--target", default="gaps", choices=terrain.ARTIFACT_KINDS)
+    p.add_argument("--target", default="gaps", choices=tuple(SETUP_TARGETS))
     p.add_argument("--setup", default="walk_stand",
                    help="the setup policy: a run name (runs/, models/policies/) or checkpoint; "
                         "'source': none, the source policy walks on to the hand-over")
