@@ -277,9 +277,13 @@ def default_sweep_config() -> config_dict.ConfigDict:
     return config_dict.create(
         n_points=100_000,  # data points per target terrain kind (5 per switch sample)
         window=(-2, -1, 0, 1, 2),  # data points kept around the switch step t
-        switch_max_m=0.9,  # switch at U(0, switch_max_m) before the artifact (= detect range)
+        switch_max_m=0.9,  # switch at U(switch_min_m, switch_max_m) before the artifact (= detect
+        switch_min_m=0.0,  # range); the paper's is U(0, 0.9) [m]; a raised floor puts the data
+        # where the switching rules decide (0.3-0.9 m)
+        approach_queries=2,  # per episode, observations recorded earlier on the approach, at
+        # U(switch distance, switch_max_m) each: the states a "when" rule decides from
         steps_past=2,  # success: this many steps past the artifact's end, no fall (a step: a
-        # landing of the other foot than the last step's, so 2 = both feet; sweep.count_steps_past)
+        # landing of the other foot than the last step's, so 2 = both feet; labels.count_steps_past)
         horizon_s=20.0,  # a sample that has not succeeded or fallen by then is a failure
         lookup_bin_m=0.01,  # lookup table: success rate per 1 cm of switch distance (90 bins)
         batch=256,  # episodes per jitted rollout (split over local devices)
@@ -310,6 +314,37 @@ def default_estimator_config() -> config_dict.ConfigDict:
         seed=0,
         std_floor=1e-2,  # input columns with a smaller std (constant heightmap cells) scale by this
         eval_chunk=4096,  # validation points per forward pass
+    )
+
+
+def default_when_config() -> config_dict.ConfigDict:
+    """The learned "when" rule (switching/when.py): the success of switching at a distance d'
+    <= the current one, from the state now; it switches when now is the best remaining moment."""
+    return config_dict.create(
+        trunk_hidden=(128, 64),  # on (active policy, distance, phase clock, state, profile)
+        head_hidden=(64,),  # on (trunk, later distance, distance - later distance)
+        ensemble=4,  # members (seeds) whose logits are averaged
+        prior_bin_m=0.05,  # the prior table's bins of the switch distance [m]: the model is its
+        # logit plus what the network learns from the state
+        epochs=300,
+        batch_size=512,
+        learning_rate=1e-3,
+        weight_decay=1e-3,  # AdamW
+        patience=25,  # early stop: epochs without a better validation loss (BCE)
+        val_track_mod=5,  # validation: sweep tracks whose id % val_track_mod == 0 (by track)
+        std_floor=1e-2,
+        seed=0,
+        # the rule: a later distance d' on this grid [m], at least min_gap_m nearer, is a moment
+        # still to come; switch when P(now) >= max P(d') + margin (margin chosen on tuning tracks)
+        grid_m=(0.2, 0.9, 0.025),  # start, stop, step: the band the sweep data cover
+        min_gap_m=0.02,
+        band_tol=1.0,  # act only where the prior table is within this of its best (1: anywhere;
+        # a host constant: chosen on tuning tracks)
+        later_from="model",  # the later moments' P: the model given the state now ("model"), or
+        # the prior table alone ("table"; chosen on tuning tracks, a key resolved on the host)
+        margin=0.0,
+        margin_choices=(-0.02, 0.0, 0.02, 0.05),
+        persist_steps=1,  # ... on this many control steps in a row (temporal smoothing)
     )
 
 

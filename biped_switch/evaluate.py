@@ -23,8 +23,10 @@ Policies load from `<runs>/<policy>_<init>/checkpoints/<latest>` (or models/poli
 `multi` (Table II): every method on the same `mixed` tracks (7 artifacts, no kind twice in a
 row, >= 0.9 m of flat before each; trial i uses track i and rng seed + batch start), each trial
 starting with the walk policy; the methods differ only in when they switch (switching.py). The
-stand-init suite is used for every method but `estimator_no_overlap`, which uses the random-init
-policies and their estimators and starts from random joints with no pause, as they were trained.
+stand-init suite is used for every method but `estimator_no_overlap` and `learned_no_overlap`,
+which use the random-init policies (with their estimators or learned rule) and start from random
+joints with no pause, as they were trained. `learned` is our learned "when" rule
+(switching/when.py, `python -m biped_switch.when`).
 Every env runs on the physics `--backend`, with the env overrides its policy suite was trained with.
 Reports % distance, % success and % of trials failing on gaps / jumps / stairs, with 95% CIs;
 saves Markdown, CSV and JSON under experiments/results/table2/, plus the paper's Fig. 5 (one
@@ -53,7 +55,8 @@ import numpy as np
 
 from biped_switch import cli
 from biped_switch.simulation import env as env_lib
-from biped_switch.config import EVAL_TRACK_SEED, MULTI_TRACK_SEED, TUNE_TRACK_SEED
+from biped_switch.config import (EVAL_TRACK_SEED, MULTI_TRACK_SEED, TUNE_TRACK_SEED,
+                                 default_when_config)
 from biped_switch.reports.fig5 import plot_trial
 from biped_switch.evaluation.trace import trace_trial
 from biped_switch.paper import TABLE2_FAIL_ORDER
@@ -62,7 +65,9 @@ from biped_switch.learning.runs import BASELINE_DIR, find_policy
 from biped_switch.evaluation.single import (HORIZON_MARGIN, HORIZON_SPEED_MPS, evaluate_single, merge_rows as merge_table1)
 from biped_switch.reports.table1 import table1_markdown
 from biped_switch.reports.fig4b import plot_switch_distances
-from biped_switch.evaluation.multi import (BASELINES, MULTI_METHODS, SETUP_METHODS, available_methods, evaluate_multi, merge_rows, mixed_track, trial_track)
+from biped_switch.evaluation.multi import (BASELINES, LEARNED_METHODS, MULTI_METHODS,
+                                           RANDOM_INIT_METHODS, SETUP_METHODS, available_methods,
+                                           evaluate_multi, merge_rows, mixed_track, trial_track)
 from biped_switch.reports.table2 import (claims_markdown, failures_by_context, failures_markdown,
                                          paper_claims, policy_on_falls, policy_on_falls_markdown, suite_ceiling, ceiling_markdown,
                                          switch_outcomes, switch_summary, switches_markdown,
@@ -114,6 +119,16 @@ def main(argv=None) -> int:
                    help="the learned detector's folder (with --detector learned)")
     cli.add_runs(m)
     m.add_argument("--estimators", default="models/estimators")
+    m.add_argument("--when-dir", default="models/switch_when",
+                   help="the learned when rule's models (python -m biped_switch.when)")
+    m.add_argument("--when-margin", type=float, default=None,
+                   help="learned rule: switch once P(now) >= best later P + this (default: "
+                        "config's, chosen on tuning tracks)")
+    m.add_argument("--when-persist", type=int, default=None,
+                   help="learned rule: ... on this many control steps in a row (default: config's)")
+    m.add_argument("--when-later", default=None, choices=("model", "table"),
+                   help="learned rule: the later moments' P from the model or the prior table "
+                        "(default: config's)")
     m.add_argument("--lookup", default="experiments/results/lookup")
     m.add_argument("--dqn", default=None,
                    help=f"DQN run directory (default: RUNS/dqn_stand, then {BASELINE_DIR}/dqn_stand)")
@@ -137,7 +152,9 @@ def main(argv=None) -> int:
                 "the table2.json and table2_trials.npz of `evaluate multi` it reads")
     w = sub.add_parser("switches", help="where each rule switched, and what it cost "
                                         "(switch_distances.md/.json/.png)")
-    w.add_argument("--methods", nargs="+", default=["com_over_feet", "lookup", "lookup_context"],
+    w.add_argument("--methods", nargs="+", default=["com_over_feet", "lookup", "lookup_context",
+                                                    "estimator", "estimator_context_persist",
+                                                    "learned"],
                    choices=[m for m in MULTI_METHODS if m not in BASELINES])
     w.add_argument("--trials", type=int, default=500, help="Table II's first trials (tracks)")
     for flag, default in (("--batch", 250), ("--seed", 0)):
@@ -323,9 +340,12 @@ def _main_switches(a, p) -> int:
                    a.estimators, a.lookup, print_fn=lambda *s: print(*s, flush=True),
                    n_artifacts=n_art, backend=a.backend, per_trial=per_trial)
     tracks = [mixed_track(MULTI_TRACK_SEED + i, n_art) for i in range(a.trials)]
-    by_method = {m: switch_summary(switch_outcomes(tracks, d["switch_ahead_m"], d["progress_frac"],
-                                                   d["fell"], d["fail_kind"]))
-                 for m, d in per_trial.items()}
+    # a rule with a model logs its output at each switch; the others have none to show
+    model = {m for m in per_trial if m.startswith("estimator") or m in LEARNED_METHODS}
+    by_method = {m: switch_summary(switch_outcomes(
+        tracks, d["switch_ahead_m"], d["progress_frac"], d["fell"], d["fail_kind"],
+        switch_output=d.get("switch_output") if m in model else None,
+        switch_forced=d.get("switch_forced"))) for m, d in per_trial.items()}
     out = pathlib.Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     md = switches_markdown(by_method)
@@ -354,10 +374,22 @@ def _setup_trial(setup, first: int, trials: int) -> int:
     return first
 
 
+def _when_cfg(a):
+    """The learned rule's config with this command's overrides."""
+    cfg = default_when_config()
+    for key, value in (("margin", a.when_margin), ("persist_steps", a.when_persist),
+                       ("later_from", a.when_later)):
+        if value is not None:
+            cfg[key] = value
+    return cfg
+
+
 def _main_multi(a, p) -> int:
     if a.trials < 1 or a.batch < 1 or a.n_artifacts < 1:
         p.error(f"--trials, --batch and --n-artifacts must be >= 1 (got {a.trials}, {a.batch}, "
                 f"{a.n_artifacts})")
+    if a.when_persist is not None and a.when_persist < 1:
+        p.error(f"--when-persist must be >= 1, got {a.when_persist}")
     batch = min(a.batch, a.trials)
     t0 = time.perf_counter()
     json_path = pathlib.Path(a.out) / "table2.json"
@@ -370,7 +402,7 @@ def _main_multi(a, p) -> int:
     except ValueError as e:
         p.error(f"{json_path}: {e}")
     a.methods, skipped = available_methods(a.methods, a.runs, a.estimators, a.lookup, a.dqn,
-                                           a.stand_in)
+                                           a.stand_in, a.when_dir)
     for s in skipped:
         print(f"skipped {s}", file=sys.stderr)
     if not a.methods:
@@ -384,7 +416,8 @@ def _main_multi(a, p) -> int:
                                   print_fn=lambda *s: print(*s, flush=True), guide_scale=a.guide_scale,
                                   dqn_dir=a.dqn, n_artifacts=a.n_artifacts, backend=a.backend,
                                   per_trial=per_trial, track_seed=a.track_seed,
-                                  detector_dir=a.detector_dir if a.detector == "learned" else None)
+                                  detector_dir=a.detector_dir if a.detector == "learned" else None,
+                                  when_dir=a.when_dir, when_cfg=_when_cfg(a))
     session_s = time.perf_counter() - t0
     lock = _lock(pathlib.Path(a.out))  # another `evaluate multi` may have added rows meanwhile
     old = _read_table(json_path, a.fresh)
@@ -420,21 +453,28 @@ def _main_multi(a, p) -> int:
     # Fig. 5 of each stand-suite estimator method run now: fig5_trial<i>[<suffix>.png]; of each
     # setup method, the first trial from <i> on whose track has a pair a setup policy serves
     for method in a.methods:
-        if a.fig5_trial < 0 or method == "estimator_no_overlap":
+        if a.fig5_trial < 0 or method in RANDOM_INIT_METHODS:
             continue
         if method.startswith("estimator") and "stand" in setups:
             suffix, s, trial = method.removeprefix("estimator"), setups["stand"], a.fig5_trial
         elif method in SETUP_METHODS and "stand+setup" in setups:
             s = setups["stand+setup"]
             trial, suffix = _setup_trial(s, a.fig5_trial, a.trials), f"_{method}"
+        elif method in LEARNED_METHODS and "stand+learned" in setups:
+            s, trial, suffix = setups["stand+learned"], a.fig5_trial, f"_{method}"
         else:
             continue
         trial %= a.trials
         rec = trace_trial(s, method, trial, a.seed)
         rec["policy_names"] = np.asarray(s.policy_names)
+        threshold = None
+        if method in LEARNED_METHODS:  # its trace holds the score, against the margin
+            rec["output_kind"] = np.asarray("score")
+            threshold = float(s.variants[method]["threshold"])
+            rec["threshold"] = np.asarray(threshold)
         track = trial_track(s, trial)
         path = out / f"fig5_trial{trial}{suffix}.png"
-        plot_trial(rec, track, path, f"{method} switching, trial {trial}")
+        plot_trial(rec, track, path, f"{method} switching, trial {trial}", threshold)
         np.savez_compressed(path.with_suffix(".npz"), **rec, track_seed=a.track_seed + trial,
                             n_artifacts=a.n_artifacts)
         print(f"wrote {path}")

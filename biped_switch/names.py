@@ -22,7 +22,11 @@ CONTEXT_METHODS = ("lookup_context", "estimator_context", "estimator_context_per
 # Ours with setup policies (switching/setup.py): a method of the rows above, and where a trained
 # setup policy exists for (active policy -> target), it acts from detection to its hand-over.
 SETUP_METHODS = ("lookup_context_setup",)
-MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS + SETUP_METHODS
+# Ours: the learned "when" rule (switching/when.py), trained on the context sweeps' approaches;
+# `learned_no_overlap` is the same rule on the random-init suite (estimator_no_overlap's like).
+LEARNED_METHODS = ("learned", "learned_no_overlap")
+RANDOM_INIT_METHODS = ("estimator_no_overlap", "learned_no_overlap")  # random-init suite, start
+MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS + SETUP_METHODS + LEARNED_METHODS
 # What the terrain detector names: nothing in range, or an artifact kind (class c = kind + 1).
 DETECTOR_CLASSES = ("none",) + ARTIFACT_KINDS
 HEURISTICS = ("random", "detection", "lookup", "com_over_feet")  # the paper's heuristic rows

@@ -103,3 +103,30 @@ def smoothed_success_pct(rate: np.ndarray, count: np.ndarray, bins: int) -> np.n
     n = np.convolve(count, k, "same")
     with np.errstate(invalid="ignore", divide="ignore"):
         return 100 * s / n
+
+
+def brier(p, y) -> float:
+    """Mean squared error of probabilities `p` against 0/1 outcomes `y`."""
+    p, y = np.asarray(p, np.float64), np.asarray(y, np.float64)
+    return float(np.mean((p - y) ** 2))
+
+
+def reliability(p, y, bins: int = 10) -> dict:
+    """Per equal-width probability bin: the mean prediction, the observed frequency and the count
+    (a reliability diagram's points; empty bins are NaN)."""
+    p, y = np.asarray(p, np.float64), np.asarray(y, np.float64)
+    b = np.clip((p * bins).astype(int), 0, bins - 1)
+    n = np.bincount(b, minlength=bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_p = np.bincount(b, p, bins) / n
+        freq = np.bincount(b, y, bins) / n
+    return {"mean_p": mean_p, "freq": freq, "count": n}
+
+
+def ece(p, y, bins: int = 10) -> float:
+    """Expected calibration error: the count-weighted mean |frequency - mean prediction| over
+    `reliability`'s bins."""
+    r = reliability(p, y, bins)
+    ok = r["count"] > 0
+    return float(np.sum(r["count"][ok] * np.abs(r["freq"][ok] - r["mean_p"][ok]))
+                 / max(r["count"].sum(), 1))

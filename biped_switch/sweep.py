@@ -43,6 +43,14 @@ def main(argv=None) -> int:
     p.add_argument("--context", action="store_true",
                    help="switch after the source policy has crossed its own artifact, as on mixed "
                         "tracks (two-artifact tracks; data and lookup named <init>_context)")
+    p.add_argument("--switch-min", type=float, default=None,
+                   help="switch at U(this, 0.9) m before the artifact (default 0: the paper's); "
+                        "a floor puts the data where the rules decide")
+    p.add_argument("--replay", type=int, default=0, metavar="N",
+                   help="instead of sweeping: replay N recorded switches (0.3-0.9 m) of each "
+                        "target's sweep in a program of another batch size, and report how often "
+                        "the label agrees (RESULTS/label_noise.json)")
+    p.add_argument("--replay-batch", type=int, default=128)
     a = p.parse_args(argv)
     name = sweep_name(a.init, a.context)
     cfg = default_sweep_config()
@@ -50,12 +58,20 @@ def main(argv=None) -> int:
         cfg.n_points = a.points
     if a.batch is not None:
         cfg.batch = a.batch
+    if a.switch_min is not None:
+        if not 0.0 <= a.switch_min < cfg.switch_max_m:
+            p.error(f"--switch-min must lie in [0, {cfg.switch_max_m}) m, got {a.switch_min}")
+        cfg.switch_min_m = a.switch_min
     if a.difficulty is not None:
         terrain.check_difficulty(a.difficulty)
         cfg.difficulty = a.difficulty
     if cfg.n_points < 1 or cfg.batch < 1:
         p.error("--points and --batch must be >= 1")
     out = pathlib.Path(a.out)
+    if a.replay:
+        if a.replay < 1 or a.replay_batch < 1:
+            p.error(f"--replay and --replay-batch must be >= 1, got {a.replay}, {a.replay_batch}")
+        return _main_replay(a, out / name, pathlib.Path(a.results))
     lookup_path = pathlib.Path(a.results) / f"lookup_{name}.json"
 
     def read_stored() -> tuple[dict, dict]:
@@ -113,6 +129,27 @@ def main(argv=None) -> int:
     for k, v in doc["best_m"].items():
         if v is not None:
             print(f"  {k:16s} {v:.2f}")
+    return 0
+
+
+def _main_replay(a, sweep_dir: pathlib.Path, results: pathlib.Path) -> int:
+    rows = []
+    for target in a.targets:
+        path = sweep_dir / f"{target}.npz"
+        if not path.exists():
+            raise FileNotFoundError(f"no sweep data at {path} to replay")
+        r = sweep_lib.replay_labels(load_data(path), a.replay, a.replay_batch, a.runs,
+                                    a.stand_in, a.backend, seed=a.seed,
+                                    print_fn=lambda *s: print(*s, flush=True))
+        rows.append({**r, "data": str(path), "device": str(jax.devices()[0]),
+                     "backend": env_lib.resolve_backend(a.backend)})
+        print(json.dumps(rows[-1]), flush=True)
+    results.mkdir(parents=True, exist_ok=True)
+    dst = results / "label_noise.json"
+    old = json.loads(dst.read_text()) if dst.exists() else []
+    keep = [r for r in old if r["target"] not in a.targets]
+    dst.write_text(json.dumps(keep + rows, indent=1))
+    print(f"wrote {dst}")
     return 0
 
 

@@ -1,5 +1,6 @@
 """Table I metrics on hand-made rollouts, against hand-computed values."""
 
+import functools
 import json
 import pathlib
 
@@ -273,20 +274,23 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
     monkeypatch.setattr(runs_lib, "BASELINE_DIR", tmp_path / "baselines")
     runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
+    when_dir = tmp_path / "when"
+    avail = functools.partial(table2.available_methods, when_dir=when_dir)
     for n in ("walk", "jumps", "gaps", "stairs"):  # the stand suite
         _fake_ckpt(runs / f"{n}_stand")
-    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end",
                         "lookup_context", "estimator_context", "estimator_context_persist",
-                        "lookup_context_setup"}
+                        "lookup_context_setup", "learned", "learned_no_overlap"}
+    assert f"no learned when rule in {when_dir}/stand" in why["learned"]
     assert "--policy setup_gaps" in why["lookup_context_setup"]
     assert "make train-dqn" in why["dqn"] and "--policy mixed" in why["end_to_end"]
     assert "random-init walk" in why["estimator_no_overlap"]
     # a suite with a policy missing is skipped, naming it
     _fake_ckpt(runs / "walk_random")
-    ok, skipped = table2.available_methods(["estimator_no_overlap"], runs, est, lookup)
+    ok, skipped = avail(["estimator_no_overlap"], runs, est, lookup)
     assert ok == [] and "no random-init jumps, gaps, stairs policy" in skipped[0]
     # once the parts exist, every method is available
     for n in ("jumps", "gaps", "stairs"):
@@ -298,29 +302,35 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
             (est / f"{init}_{k}").mkdir(parents=True)
     lookup.mkdir()
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}}}')  # one target swept
-    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
     assert "lookup" not in ok and skipped[0] == (
         f"lookup: the lookup table in {lookup} has no gaps, stairs (python -m biped_switch.sweep "
         "--targets gaps stairs)")
-    later = list(table2.CONTEXT_METHODS + table2.SETUP_METHODS)
+    later = list(table2.CONTEXT_METHODS + table2.SETUP_METHODS + table2.LEARNED_METHODS)
     assert [s.split(":")[0] for s in skipped[1:]] == later
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
-    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.SWITCH_METHODS + table2.BASELINES)
     assert [s.split(":")[0] for s in skipped] == later
     # a context sweep of one target: the other targets keep the plain sweep's parts
     (est / "stand_context_gaps").mkdir()
     (lookup / "lookup_stand_context.json").write_text('{"tables": {"gaps": {}}}')
-    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.SWITCH_METHODS + table2.BASELINES + table2.CONTEXT_METHODS)
-    assert [s.split(":")[0] for s in skipped] == list(table2.SETUP_METHODS)
+    assert [s.split(":")[0] for s in skipped] == list(table2.SETUP_METHODS + table2.LEARNED_METHODS)
     # a setup policy: its run's config says what it serves
     _fake_ckpt(runs / "setup_gaps_stand")
     (runs / "setup_gaps_stand" / "config.json").write_text(
         '{"setup": {"target": "gaps", "sources": ["jumps", "stairs"], "handover_m": 0.45}}')
     assert table2.find_setup_policies("stand", runs) == {
         "setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)}
-    ok, skipped = table2.available_methods(table2.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
+    assert [s.split(":")[0] for s in skipped] == list(table2.LEARNED_METHODS)
+    # the learned when rule of each suite
+    for init in ("stand", "random"):
+        (when_dir / init).mkdir(parents=True)
+        (when_dir / init / "meta.json").write_text("{}")
+    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.MULTI_METHODS) and skipped == []
     assert runs_lib.find_dqn(runs) == runs / "dqn_stand"
     assert runs_lib.find_dqn(runs, dqn_dir=tmp_path / "no_dqn") is None  # an explicit directory only
@@ -482,7 +492,7 @@ def test_paper_claims_by_hand():
     rows = heur + [_ci_row("estimator", 71, 69, 73), _ci_row("estimator_no_overlap", 1, 0, 2),
                    _ci_row("dqn", 72, 70, 74), _ci_row("end_to_end", 90, 89, 91)]
     got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}  # the paper's table
-    assert [c["verdict"] for c in got.values()] == ["holds"] * 4
+    assert [c["verdict"] for c in got.values()] == ["holds"] * 4 + ["not tested"] * 2
     assert "above all 7 other rows" in got["end-to-end is best"]["evidence"]
     rows[3] = _ci_row("com_over_feet", 70, 68, 72)  # overlaps the estimator: not beaten
     rows[6] = _ci_row("dqn", 80, 78, 82)
@@ -495,11 +505,20 @@ def test_paper_claims_by_hand():
     e2e = got["end-to-end is best"]
     assert e2e["verdict"] == "fails" and "not beaten: lookup_context 90.0 (88.5-91.5)" in e2e["evidence"]
     assert got["without overlap the estimator collapses"]["verdict"] == "holds"
+    # ours: the learned rule against the heuristics and the context lookup table
+    rows += [_ci_row("learned", 80, 78, 82), _ci_row("learned_no_overlap", 60, 58, 62)]
+    got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}
+    ours = got["ours: a learned rule beats every hand-made rule"]
+    assert ours["verdict"] == "fails" and ours["evidence"].endswith("not beaten: lookup_context")
+    rows[-3] = _ci_row("lookup_context", 73, 71, 75)
+    got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}
+    assert got["ours: a learned rule beats every hand-made rule"]["verdict"] == "holds"
+    assert got["ours: without overlap the learned rule collapses"]["verdict"] == "holds"
     part = table2_report.paper_claims(heur + [_ci_row("estimator", 71, 69, 73)])
-    assert [c["verdict"] for c in part] == ["holds", "not tested", "not tested", "not tested"]
+    assert [c["verdict"] for c in part] == ["holds"] + ["not tested"] * 5
     assert part[1]["evidence"] == "missing rows: estimator_no_overlap"
     md = table2_report.claims_markdown(part)
-    assert md.count("\n") == 5 and "| the DQN is comparable" in md
+    assert md.count("\n") == 7 and "| the DQN is comparable" in md
 
 
 def test_run_batches_covers_each_trial_once_and_reports_progress():
@@ -595,7 +614,19 @@ def test_failures_by_context_by_hand():
     assert summ["stairs"]["gaps"]["lost_by_ahead"] == [[0.0, 0.1, 1, 0]]
     assert summ["jumps"]["start"]["lost_pct"] == 0.0 and list(summ["gaps"]) == ["start", "jumps"]
     md = table2_report.switches_markdown({"m": summ})
-    assert "| m | jumps | 2 | 0.50 (0.45-0.55) | 0.0 | 100.0 |" in md
+    assert "| m | jumps | 2 | 0.50 (0.45-0.55) | 0.0 | 100.0 | - |" in md
+    # with the rollout's logs: the model output at each switch, and forced as logged
+    out = np.array([[0.9, 0.2], [0.95, 0.1], [nan, nan], [0.8, 0.6]])
+    forced = np.array([[False, False], [False, True], [False, False], [False, True]])
+    recs = table2_report.switch_outcomes(tracks, ahead, progress, fell, fail_kind,
+                                         switch_output=out, switch_forced=forced)
+    assert [(r["output"], r["forced"]) for r in recs] == [
+        (0.9, False), (0.2, False), (0.95, False), (0.1, True), (0.8, False), (0.6, True)]
+    summ = table2_report.switch_summary(recs)
+    assert summ["gaps"]["jumps"]["forced_pct"] == 50.0  # the log, not the distance, says forced
+    assert summ["gaps"]["jumps"]["output_q"] == pytest.approx([0.3, 0.4, 0.5])
+    md = table2_report.switches_markdown({"m": summ})
+    assert "| m | jumps | 2 | 0.50 (0.45-0.55) | 50.0 | 100.0 | 0.40 (0.30-0.50) |" in md
 
 
 def test_switches_cli_writes_the_summary_of_its_rollouts(tmp_path, monkeypatch, capsys):

@@ -12,6 +12,7 @@ import pytest
 from biped_switch.simulation import rollout as ro
 from biped_switch import stats
 from biped_switch.switching import rules as sw
+from biped_switch.switching import when
 from biped_switch.evaluation import multi as table2
 from biped_switch.reports import table2 as table2_report
 
@@ -121,6 +122,13 @@ def test_chunked_rollout_matches_per_step_trace(multi_fn, trace_fn, method):
         ahead = out["switch_ahead_m"][b]
         np.testing.assert_allclose(ahead[~np.isnan(ahead)],
                                    rec["det_dist_m"][(rec["switched"] > 0) & live], atol=1e-5)
+        # each switch's log: the policy it left (active the step before), its estimator output
+        at = np.flatnonzero((rec["switched"] > 0) & live)
+        logged = ~np.isnan(ahead)
+        np.testing.assert_array_equal(out["switch_from"][b][logged], rec["active"][at - 1])
+        np.testing.assert_allclose(out["switch_output"][b][logged],
+                                   rec["est_probs"][at, rec["det_kind"][at]], atol=1e-6)
+        np.testing.assert_array_equal(out["switch_forced"][b][logged], rec["det_dist_m"][at] <= 0.01)
         assert out["length"][b] == pytest.approx(live.sum())
         assert out["fell"][b] == pytest.approx(rec["fell"][live].max())
         if method == "detection":  # every switch at the first step that sees a new artifact
@@ -135,6 +143,31 @@ def test_chunked_rollout_matches_per_step_trace(multi_fn, trace_fn, method):
                 assert rec["com_ok"][i] or rec["det_dist_m"][i] <= 0.01
     if method == "detection":
         assert out["n_switches"].sum() >= 2  # the guided robots came in sight of artifacts
+
+
+def _from_half_a_metre(max_m, obs, active, kind, dist_m):
+    """A rule model that reads the context (the learned rule's interface): +1 within max_m."""
+    return jnp.where(dist_m <= max_m, 1.0, -1.0) + 0.0 * obs[:, 0] + 0.0 * active
+
+
+def test_a_context_reading_rule_switches_where_the_lookup_does(env, multi_fn):
+    """A model read after the detection, with the active policy and the distance (as the learned
+    rule is), against the lookup rule at the same distance: the same switches, and its output
+    logged at each."""
+    rule = when.RuleFn(_from_half_a_metre)
+    f = jax.jit(lambda rules, rng: sw.multi_rollout(
+        env, _apply, PARAMS, rule, jnp.float32(0.5), rules, rng, B, HORIZON,
+        track_ids=jnp.asarray(TRACK_IDS), chunk=40, guide_scale=1.0))
+    cfg = sw.default_switching_config()
+    cfg.estimator_threshold = 0.0
+    a = jax.device_get(f(sw.make_rules("estimator", cfg=cfg), jax.random.PRNGKey(0)))
+    b = jax.device_get(multi_fn(sw.make_rules("lookup", lookup_m=np.full((4, 3), 0.5)),
+                                jax.random.PRNGKey(0)))
+    np.testing.assert_array_equal(a["n_switches"], b["n_switches"])
+    np.testing.assert_allclose(a["switch_ahead_m"], b["switch_ahead_m"], atol=1e-6)
+    hit = ~np.isnan(a["switch_ahead_m"])
+    assert hit.sum() >= 2 and np.all(a["switch_ahead_m"][hit] <= 0.5)
+    np.testing.assert_array_equal(a["switch_output"][hit], 1.0)
 
 
 def test_table2_metrics_on_synthetic_outcomes():

@@ -14,7 +14,7 @@ import pytest
 
 from biped_switch.switching import estimator
 from biped_switch.learning import policies as pol
-from biped_switch.switching import sweep
+from biped_switch.switching import labels, sweep
 from biped_switch.switching import lookup
 from biped_switch.simulation.observation import ObsLayout
 from biped_switch import sweep as sweep_cli
@@ -32,14 +32,14 @@ def _window_ref(obs_seq, t_switch, t_end):
 @pytest.mark.parametrize("t_switch,t_end", [(5, 20), (0, 20), (1, 20), (10, 11), (10, 10), (12, 12)])
 def test_window_matches_python_loop(t_switch, t_end):
     obs_seq = np.arange(21 * 3, dtype=np.float32).reshape(21, 3)
-    w = sweep.window_init(jnp.asarray(obs_seq[0]))
-    update = jax.jit(sweep.window_update)
+    w = labels.window_init(jnp.asarray(obs_seq[0]))
+    update = jax.jit(labels.window_update)
     switched = False
     for t in range(t_end + 1):  # the episode's observations 0..t_end
         now = t == t_switch
         w = update(w, jnp.asarray(obs_seq[t]), jnp.bool_(now), jnp.bool_(switched))
         switched = switched or now
-    got = np.asarray(sweep.window_fill(w))
+    got = np.asarray(labels.window_fill(w))
     np.testing.assert_array_equal(got, _window_ref(obs_seq, t_switch, t_end))
 
 
@@ -47,16 +47,16 @@ def test_window_follows_the_configured_offsets():
     """A window of other step offsets (-1 .. +2) records those around the switch; offsets that are
     not consecutive are refused."""
     obs_seq = np.arange(21 * 3, dtype=np.float32).reshape(21, 3)
-    w = sweep.window_init(jnp.asarray(obs_seq[0]), (-1, 0, 1, 2))
+    w = labels.window_init(jnp.asarray(obs_seq[0]), (-1, 0, 1, 2))
     switched = False
     for t in range(21):
         now = t == 5
-        w = sweep.window_update(w, jnp.asarray(obs_seq[t]), jnp.bool_(now), jnp.bool_(switched))
+        w = labels.window_update(w, jnp.asarray(obs_seq[t]), jnp.bool_(now), jnp.bool_(switched))
         switched = switched or now
-    np.testing.assert_array_equal(sweep.window_fill(w), obs_seq[4:8])
-    assert sweep.N_WINDOW == len(sweep_cli.default_sweep_config().window) == 5
+    np.testing.assert_array_equal(labels.window_fill(w), obs_seq[4:8])
+    assert labels.N_WINDOW == len(sweep_cli.default_sweep_config().window) == 5
     with pytest.raises(ValueError, match="consecutive"):
-        sweep.window_init(jnp.zeros(3), (-2, 0, 2))
+        labels.window_init(jnp.zeros(3), (-2, 0, 2))
 
 
 def _c(left, right):
@@ -65,14 +65,14 @@ def _c(left, right):
 
 def test_touchdowns_and_steps_past_by_hand():
     # left lands (was in the air), right stays down: one touchdown, the left one
-    td = sweep.touchdowns(_c(1, 1), _c(0, 1))
+    td = labels.touchdowns(_c(1, 1), _c(0, 1))
     assert td.tolist() == [True, False]
     # a single sole landing counts as the foot landing
     now = jnp.zeros(8).at[2].set(1.0)
-    assert sweep.touchdowns(now, jnp.zeros(8)).tolist() == [True, False]
+    assert labels.touchdowns(now, jnp.zeros(8)).tolist() == [True, False]
     soles_x = jnp.asarray([2.0] * 4 + [1.0] * 4)  # left foot past x = 1.5, right foot not
-    L, R, N = sweep.LEFT, sweep.RIGHT, sweep.NO_FOOT
-    count = jax.jit(sweep.count_steps_past)
+    L, R, N = labels.LEFT, labels.RIGHT, labels.NO_FOOT
+    count = jax.jit(labels.count_steps_past)
     assert [int(v) for v in count(0, N, _c(1, 1), _c(0, 0), soles_x, 1.5)] == [1, L]
     assert [int(v) for v in count(1, L, _c(1, 1), _c(1, 1), soles_x, 1.5)] == [1, L]  # no landing
     # L lands past, R lands short of the end, L lands past again (same foot: no new step),
@@ -90,7 +90,7 @@ def test_touchdowns_and_steps_past_by_hand():
                    (4, L)]
 
 
-_label_step = jax.jit(sweep.label_step, static_argnames="steps_past")
+_label_step = jax.jit(labels.label_step, static_argnames="steps_past")
 
 
 def _label_trace(events, t_switch=1, horizon=50, steps_past=2, art_end_x=1.5):
@@ -98,7 +98,7 @@ def _label_trace(events, t_switch=1, horizon=50, steps_past=2, art_end_x=1.5):
     "L", "R", "LR" (those feet land past the end), "l" / "r" (lands short of it), "fall",
     "success", "done" or a "+"-joined mix ("R+fall": R lands and that step falls).
     Returns (label, fell, fell_before, steps past the end, the step the record ended or None)."""
-    lab = sweep.labelling_init()
+    lab = labels.labelling_init()
     switched = False
     for t in range(60):
         ev = events.get(t, "").split("+")
@@ -106,7 +106,7 @@ def _label_trace(events, t_switch=1, horizon=50, steps_past=2, art_end_x=1.5):
         feet_x = [art_end_x - 0.3 if s in ev else art_end_x + 0.2 for s in ("l", "r")]
         contact_prev = _c(*[0.0 if f else 1.0 for f in land])
         soles_x = jnp.asarray([feet_x[0]] * 4 + [feet_x[1]] * 4)
-        live = sweep.is_live(lab, jnp.int32(t), horizon)
+        live = labels.is_live(lab, jnp.int32(t), horizon)
         now = bool(live) and t == t_switch
         lab = _label_step(lab, live, jnp.bool_(switched), jnp.bool_(switched or now), _c(1, 1),
                           contact_prev, soles_x, jnp.float32(art_end_x), jnp.bool_("fall" in ev),
@@ -176,7 +176,7 @@ def guided_batch(env):
     run = jax.jit(lambda rng, tidx: sweep.sweep_rollout(
         env, apply, params, rng, jnp.asarray(TRACK_IDS), src, pol.POLICY_INDEX["gaps"],
         switch_max_m=0.9, steps_past=2, horizon=300, guide_scale=1.0,
-        end_offset_m=END_OFFSET_M, target_index=tidx))
+        end_offset_m=END_OFFSET_M, target_index=tidx, approach_queries=2))
     first = jax.device_get(run(jax.random.PRNGKey(3), jnp.zeros(B, jnp.int32)))
     # the same batch switching before each track's 2nd artifact (a context sweep), which the
     # guided robot, stopped at the 1st, never gets near: no switch, so no sample
@@ -285,19 +285,28 @@ def test_sweep_batch_window_and_label_against_reference_loop(env, fns, guided_ba
         # the window ends at the last observation acted on (the label, a fall or the horizon)
         np.testing.assert_allclose(out["window"][b], _window_ref(obs[:, b], t, n_steps - 1),
                                    atol=1e-4)
+        # each approach record: the first observation within its distance, at or before the switch
+        for k in range(2):
+            q = float(out["approach_at_m"][b, k])
+            assert out["switch_at_m"][b] <= q <= 0.9
+            t_k = int(np.flatnonzero((d <= 0.9) & (d <= q))[0])
+            assert t_k <= t and out["approach_valid"][b, k]
+            assert out["approach_dist_m"][b, k] == pytest.approx(d[t_k], abs=1e-4)
+            np.testing.assert_allclose(out["approach_obs"][b, k], obs[t_k, b], atol=1e-4)
     assert n_valid >= 2  # the guided robot reaches the switch point on most tracks
     assert set(labels) == {False, True}, labels  # both labels checked against the reference
 
 
-def test_split_keeps_exactly_state_and_heightmap():
-    """The estimator's inputs are the robot state (51) and the heightmap (2400): the phase clock
-    and the detector one-hot that an env may append after the heightmap are left out."""
+def test_split_keeps_exactly_state_heightmap_and_phase():
+    """The estimator's inputs are the robot state (51) and the heightmap (2400); the phase clock
+    is kept apart, and the detector one-hot that an env may append after it is left out."""
     s, hm = sweep.env_lib.STATE_SIZE, 60 * 40
     obs = np.arange(2 * 5 * (s + hm + 2 + 3), dtype=np.float32).reshape(2, 5, -1) % 1000
-    state, heightmap = sweep._split(obs, ObsLayout((60, 40), 2, 3))
-    assert state.shape == (2, 5, s) and heightmap.shape == (2, 5, hm)
+    state, heightmap, phase = sweep._split(obs, ObsLayout((60, 40), 2, 3))
+    assert state.shape == (2, 5, s) and heightmap.shape == (2, 5, hm) and phase.shape == (2, 5, 2)
     np.testing.assert_array_equal(state, obs[..., :s])
     np.testing.assert_array_equal(heightmap, obs[..., s:s + hm].astype(np.float16))
+    np.testing.assert_array_equal(phase, obs[..., s + hm:s + hm + 2])
 
 
 # ----------------------------------------------------------------------- resuming (no MJX)
@@ -339,9 +348,12 @@ def fake_sweep(monkeypatch):
             if fail_at and len(calls) == fail_at[0]:
                 raise KeyboardInterrupt
             o = sweep.env_lib.STATE_SIZE + 4
+            n = len(ids)
             return {"valid": ids % 3 != 0, "label": ids % 2 == 0, "source": np.asarray(src),
                     "window": ids[:, None, None] + np.arange(5 * o).reshape(1, 5, o) / 1e3,
-                    "switch_dist_m": (ids % 90) / 100 + 0.005, "track_id": ids}
+                    "switch_dist_m": (ids % 90) / 100 + 0.005, "track_id": ids,
+                    "approach_obs": np.zeros((n, 2, o)), "approach_dist_m": np.ones((n, 2)),
+                    "approach_valid": np.ones((n, 2), bool)}
         return run
 
     monkeypatch.setattr(sweep, "time", type("T", (), {"perf_counter": clock.perf_counter}))

@@ -3,9 +3,9 @@
 Every method runs on the same `mixed` tracks (7 artifacts by default, no kind twice in a row,
 >= 0.9 m of flat before each; trial i on track config.MULTI_TRACK_SEED + i with rng seed + batch
 start), each trial starting with the walk policy; the switching methods differ only in when they
-switch (switching.py). The stand-init suite is used for every method but `estimator_no_overlap`,
-which uses the random-init policies and their estimators and starts from random joints with no
-pause, as they were trained. The baselines (the DQN selector, the end-to-end policy) run the same
+switch (switching.py). The stand-init suite is used for every method but `estimator_no_overlap`
+and `learned_no_overlap` (RANDOM_INIT_METHODS), which use the random-init policies and their
+estimators or learned rule and start from random joints with no pause, as they were trained. The baselines (the DQN selector, the end-to-end policy) run the same
 tracks, seeds and horizon (`BaselineSetup`). Every env runs on the chosen physics backend, with the
 env overrides its policy suite was trained with. A row reports % distance, % success and % of
 trials failing on gaps / jumps / stairs, with 95% CIs (stats.py).
@@ -27,25 +27,27 @@ from biped_switch.simulation import env as env_lib
 from biped_switch.switching import estimator as est_lib
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
-from biped_switch.switching import sweep
+from biped_switch.switching import labels
 from biped_switch.switching import detector as det_lib
 from biped_switch.switching import lookup
 from biped_switch.switching import rules as sw
 from biped_switch.simulation import terrain
 from biped_switch.config import (MULTI_TRACK_SEED, SETUP_SUITE, SETUP_WALK_ON,
-                                 default_terrain_config)
+                                 default_switching_config, default_terrain_config,
+                                 default_when_config)
 from biped_switch.simulation.rollout import over_devices
 from biped_switch.stats import episode_table, join_rows
 
-from biped_switch.names import (BASELINES, CONTEXT_METHODS, MULTI_METHODS,  # noqa: E402,F401
-                                SETUP_METHODS, SWITCH_METHODS)
-PERSIST_STEPS = sweep.N_WINDOW
+from biped_switch.names import (BASELINES, CONTEXT_METHODS, LEARNED_METHODS,  # noqa: E402,F401
+                                MULTI_METHODS, RANDOM_INIT_METHODS, SETUP_METHODS, SWITCH_METHODS)
+from biped_switch.switching import when as when_lib
+PERSIST_STEPS = labels.N_WINDOW
 
 
 def switch_rule(method: str) -> str:
     """The switching.METHODS rule a Table II switching method applies."""
-    if method.startswith("estimator"):
-        return "estimator"
+    if method.startswith("estimator") or method in LEARNED_METHODS:
+        return "estimator"  # a model's output against a threshold
     return base_method(method).removesuffix("_context")
 
 
@@ -72,11 +74,12 @@ def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
 
 
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
-                      stand_in: str | None = None) -> tuple[list, list]:
+                      stand_in: str | None = None, when_dir="models/switch_when"
+                      ) -> tuple[list, list]:
     """(methods whose trained parts exist, ["method: what is missing", ...])."""
     runs, ok, skipped = pathlib.Path(runs), [], []
     for m in methods:
-        init = "random" if m == "estimator_no_overlap" else "stand"
+        init = "random" if m in RANDOM_INIT_METHODS else "stand"
         first = stand_in or "walk"
         if m == "end_to_end":
             if runs_lib.find_policy("mixed", "stand", runs) is None:
@@ -95,6 +98,10 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
         if m in SETUP_METHODS and not find_setup_policies(init, runs):
             skipped.append(f"{m}: no {init}-init setup policy under {runs}/ or models/policies/ "
                            f"(python -m biped_switch.train --policy setup_gaps --init {init})")
+            continue
+        if m in LEARNED_METHODS and not (pathlib.Path(when_dir) / init / "meta.json").exists():
+            skipped.append(f"{m}: no learned when rule in {when_dir}/{init} (python -m "
+                           f"biped_switch.when --init {init})")
             continue
         if m.startswith("estimator_context"):
             if est_lib.context_estimator_paths(init, est_dir) is None:
@@ -181,7 +188,7 @@ class MultiSetup:
                  est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
                  guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto",
                  need_context: Sequence[str] = (), track_seed: int = MULTI_TRACK_SEED,
-                 detector_dir=None, with_setup: bool = False):
+                 detector_dir=None, with_setup: bool = False, when_dir=None, when_cfg=None):
         self.init = init
         # the setup methods' suite: the four policies, then every trained setup policy
         setups = find_setup_policies(init, runs) if with_setup else {}
@@ -223,6 +230,17 @@ class MultiSetup:
                 self.variants[m] = {"est_params": params, "persist_steps": persist}
                 self.parts[m] = ([f"{k}: {p}" for k, p in zip(terrain.ARTIFACT_KINDS, paths)]
                                  + [f"estimate >= threshold on {persist} control step(s) in a row"])
+        if when_dir is not None:  # the learned rule: its own model, read with the context
+            path = pathlib.Path(when_dir) / init
+            self.est_params, self.when_meta = est_lib.load_estimator(path)
+            wcfg = when_cfg or default_when_config()
+            self.est_apply = when_lib.rule_fn(self.env, wcfg)
+            margin, persist = float(wcfg.margin), int(wcfg.persist_steps)
+            for m in LEARNED_METHODS:  # each init's learned row reads its own model
+                self.variants[m] = {"threshold": margin, "persist_steps": persist}
+                self.parts[m] = [f"model: {path}",
+                                 f"switch once P(now) >= best later P ({wcfg.later_from}) + "
+                                 f"{margin:g} on {persist} control step(s) in a row"]
         if "lookup_context" in need_context:
             m, used = lookup.load_context_lookup(init, lookup_dir)
             self.variants["lookup_context"] = {"lookup_m": m}
@@ -256,7 +274,10 @@ class MultiSetup:
         if method in SETUP_METHODS:
             setup = self.setup
             lookup_m = sw.walk_on_lookup(lookup_m, self.walk_on, setup)
-        rules = sw.make_rules(switch_rule(method), lookup_m=lookup_m,
+        cfg = default_switching_config()
+        if "threshold" in var:
+            cfg.estimator_threshold = var["threshold"]
+        rules = sw.make_rules(switch_rule(method), lookup_m=lookup_m, cfg=cfg,
                               persist_steps=var.get("persist_steps"), setup=setup)
         return rules, var.get("est_params", self.est_params)
 
@@ -337,7 +358,8 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                    print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
                    n_artifacts: int = 7, backend: str = "auto",
                    per_trial: dict | None = None, track_seed: int = MULTI_TRACK_SEED,
-                   detector_dir=None) -> tuple[list, dict]:
+                   detector_dir=None, when_dir="models/switch_when",
+                   when_cfg=None) -> tuple[list, dict]:
     """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
     and per baseline ("dqn", "end_to_end"), every env on the physics `backend` with its policies'
     env overrides. `wall_s` of a row includes its setup and compiles. `per_trial`, if given, gets
@@ -347,7 +369,7 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
     setups, rows = {}, []
     for method in methods:
         t0 = time.perf_counter()
-        init = "random" if method == "estimator_no_overlap" else "stand"
+        init = "random" if method in RANDOM_INIT_METHODS else "stand"
         if method in BASELINES:
             setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
                                            guide_scale, n_artifacts, backend, track_seed,
@@ -356,9 +378,14 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
             sources = setups[method].sources
         else:
             # the setup methods run a suite with the setup policies, in a rollout of their own
-            key = f"{init}+setup" if method in SETUP_METHODS else init
+            # the setup methods run a suite with the setup policies, the learned rule its own
+            # model: each in a rollout of its own
+            learned = method in LEARNED_METHODS
+            key = (f"{init}+setup" if method in SETUP_METHODS
+                   else f"{init}+learned" if learned else init)
             if key not in setups:
-                group = [m for m in methods if (m in SETUP_METHODS) == (method in SETUP_METHODS)]
+                group = [m for m in methods if (m in SETUP_METHODS) == (method in SETUP_METHODS)
+                         and (m in LEARNED_METHODS) == learned]
                 bases = {base_method(m) for m in group}
                 need_est = ("estimator_no_overlap" if init == "random" else "estimator") in bases
                 need_ctx = [m for m in CONTEXT_METHODS if m in bases] if init == "stand" else []
@@ -367,7 +394,9 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                                          "lookup" in bases and init == "stand", guide_scale,
                                          n_artifacts, backend, need_context=need_ctx,
                                          track_seed=track_seed, detector_dir=detector_dir,
-                                         with_setup=method in SETUP_METHODS)
+                                         with_setup=method in SETUP_METHODS,
+                                         when_dir=when_dir if learned else None,
+                                         when_cfg=when_cfg)
             merged = setups[key].evaluate(method, trials, seed, print_fn)
             sources = setups[key].suite.sources
         if per_trial is not None:
@@ -394,7 +423,7 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
 # Per-trial outcomes `evaluate multi` keeps beside the table (table2_trials.npz): trial i ran on
 # track MULTI_TRACK_SEED + i; fail_kind is the ARTIFACT_KINDS code of the artifact fallen on (-1: none)
 TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches", "switch_ahead_m",
-                "active_at_start")
+                "active_at_start", "switch_from", "switch_forced", "switch_output")
 
 
 # The settings that fix what a Table II row measured: rows made with equal values of these are

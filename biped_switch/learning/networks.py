@@ -32,6 +32,15 @@ def swish_mlp(x, sizes: Sequence[int], kernel_init=linen.linear.default_kernel_i
     return x
 
 
+def layer_sizes(net_variables, prefix: str) -> tuple[int, ...]:
+    """The widths of the `swish_mlp` layers `<prefix>_0, <prefix>_1, ...` in Flax variables: a
+    saved network's sizes, read back from its params (static shapes under jit and vmap)."""
+    p, out = net_variables["params"], []
+    while f"{prefix}_{len(out)}" in p:
+        out.append(int(p[f"{prefix}_{len(out)}"]["kernel"].shape[-1]))
+    return tuple(out)
+
+
 def encode(obs, state_size: int, hm_size: int, hm_hidden: Sequence[int],
            kernel_init=linen.linear.default_kernel_init, prefix: str | None = None, pool=None):
     """[state, encoded heightmap, extras] of `obs` (..., state | heightmap | extras): the heightmap

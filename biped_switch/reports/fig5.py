@@ -65,8 +65,10 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
     # caller has chosen a backend (plot_trial: Agg; a notebook: inline)
     import matplotlib.pyplot as plt
 
-    if threshold is None:  # the estimator rule's E >= threshold
-        threshold = float(default_switching_config().estimator_threshold)
+    # the learned rule's trace holds its score (P(now) - best later P), not estimates E_i(s)
+    score = str(rec.get("output_kind", "estimate")) == "score"
+    if threshold is None:  # the trace's own (the learned rule's margin), or the estimator rule's
+        threshold = float(rec.get("threshold", default_switching_config().estimator_threshold))
 
     n = trial_length(rec)
     t = np.arange(n)
@@ -77,8 +79,10 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
                "setup_gaps": "tab:red", "setup_stairs": "tab:pink", "setup_jumps": "tab:olive"}
     for k, name in enumerate(ARTIFACT_KINDS):
         p = rec["est_probs"][:n, k]
-        ax0.plot(t, p, color=colours[name], lw=0.5, alpha=0.25)
-        ax0.plot(t, np.where(kind == k, p, np.nan), color=colours[name], lw=1.5, label=f"E_{name}")
+        if not score:  # a score exists only for the detected target: no faint lines
+            ax0.plot(t, p, color=colours[name], lw=0.5, alpha=0.25)
+        ax0.plot(t, np.where(kind == k, p, np.nan), color=colours[name], lw=1.5,
+                 label=f"into {name}" if score else f"E_{name}")
     new_det = np.flatnonzero((kind >= 0) & (np.r_[-1, kind[:-1]] != kind))
     switches = np.flatnonzero(rec["switched"][:n] > 0.5)
     for ax in (ax0, axp, ax1):
@@ -86,12 +90,19 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
             ax.axvline(i, color="g", lw=1)
         for i in switches:
             ax.axvline(i, color="r", lw=1)
-    ax0.axhline(threshold, color="k", ls=":", lw=0.8, label=f"threshold {threshold:g}")
-    ax0.set_ylabel("switch estimate E_i(s)")
-    ax0.set_ylim(-0.02, 1.02)
+    ax0.axhline(threshold, color="k", ls=":", lw=0.8,
+                label=f"{'margin' if score else 'threshold'} {threshold:g}")
     ax0.legend(fontsize=8, loc="lower right", ncol=4)
-    ax0.set_title("thick: the detected artifact's estimator; faint: every estimator at every step",
-                  fontsize=8)
+    if score:
+        ax0.set_ylabel("P(now) - best later P")
+        ax0.set_ylim(-1.02, 1.02)
+        ax0.set_title("the learned rule's score for the detected artifact; it switches once the "
+                      "score reaches the margin (1: no later moment left)", fontsize=8)
+    else:
+        ax0.set_ylabel("switch estimate E_i(s)")
+        ax0.set_ylim(-0.02, 1.02)
+        ax0.set_title("thick: the detected artifact's estimator; faint: every estimator at every "
+                      "step", fontsize=8)
     # active policy strip
     active = rec["active"][:n].astype(int)
     names = policy_names(rec)

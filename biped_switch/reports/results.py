@@ -53,9 +53,11 @@ From `experiments/results/walk_stand/table1.md` and `experiments/results/walk_ra
 
 From `experiments/results/table2/table2.md`: {{t2_trials}} random {{t2_artifacts}}-artifact `mixed` tracks (seeds {{t2_seeds}}),
 {{t2_horizon}} s, no guides, no pushes, the stand-init suite (the random-init suite for
-`estimator_no_overlap`); `python -m biped_switch.evaluate multi --trials {{t2_trials_arg}}`. The failure columns
+`estimator_no_overlap` and `learned_no_overlap`); `python -m biped_switch.evaluate multi --trials {{t2_trials_arg}}`. The failure columns
 are % of trials that end in a fall on that artifact kind. `lookup_context`, `estimator_context` and
-`estimator_context_persist` are ours (context sweeps, docs/switching.md), and `lookup_context_setup`
+`estimator_context_persist` are ours (context sweeps, docs/switching.md), `learned` and
+`learned_no_overlap` our learned when rule on the stand and random-init suites ("Learning when to
+switch" below), and `lookup_context_setup`
 is `lookup_context` with the setup policies (docs/switching.md, "Setup policies"); `end_to_end` here is the
 curriculum-final policy ({{e2e_steps}} env steps) and `dqn` the {{dqn_steps}}-env-step selector.
 
@@ -153,6 +155,29 @@ Table II's tracks, seeds, horizon and batch, with the learned detector in place 
 
 {{include table2_learned_detector/failures_by_context.md +1}}
 
+## Learning when to switch (ours)
+
+The learned `when` rule (`switching/when.py`; docs/switching.md): one calibrated model of the
+success of switching at a later distance, given the state now; it switches when now is the best
+remaining moment. Offline, from `experiments/results/when/offline.md` (`python -m biped_switch.when
+--init stand`), on the held-out tracks' switches:
+
+{{include when/offline.md}}
+
+![reliability on the held-out tracks](../experiments/results/when/reliability.png)
+
+Label noise, from `experiments/results/when/label_noise.json` (`python -m biped_switch.sweep --init
+stand --context --switch-min 0.2 --out runs/sweeps_when --replay 512 --results
+experiments/results/when`): recorded switches replayed from their own starts at their own
+distances in a program of another batch size.
+
+{{label_noise}}
+
+Margin and run length, chosen on tuning tracks (seeds {{when_tune_seeds}}), from
+`experiments/results/when/tuning.md`:
+
+{{include when/tuning.md}}
+
 ## Setup policies (ours)
 
 From `experiments/results/setup/setup.md` (`python -m biped_switch.switching.setup eval --full-tracks
@@ -182,7 +207,8 @@ refreshed by `python -m biped_switch.demo --refresh-example`):
 - Fig. 5, one trial over time: [estimator](../experiments/results/table2/fig5_trial0.png),
   [context estimator](../experiments/results/table2/fig5_trial0_context.png),
   [context estimator, 5-step run](../experiments/results/table2/fig5_trial0_context_persist.png),
-  [setup policies, setup phases marked](../experiments/results/table2/fig5_trial0_lookup_context_setup.png).
+  [setup policies, setup phases marked](../experiments/results/table2/fig5_trial0_lookup_context_setup.png),
+  [the learned when rule, its score](../experiments/results/table2/fig5_trial0_learned.png).
 - Estimator training curves: `experiments/results/estimators/<init>_<target>.png`; metrics in the
   `.json` beside each (docs/switching.md tabulates them).
 """
@@ -258,6 +284,7 @@ def values(results: pathlib.Path) -> dict:
     t2, more = _json(results / "table2/table2.json"), _json(results / "end_to_end_more/table2.json")
     dqn_more, t3 = _json(results / "dqn_more/table2.json"), _json(results / "table3/table3.json")
     sw, demo = _json(results / "table2/switch_distances.json"), _json(results / "demo/demo_summary.json")
+    tune = _json(results / "when/tuning.json")
     e2e = _checkpoint(_row(t2, "end_to_end")["policies"][0])[1]
     dqn = _checkpoint(_row(t2, "dqn")["policies"][-1])[1]
     more_run, more_step = _checkpoint(_row(more, "end_to_end")["policies"][0])
@@ -291,7 +318,23 @@ def values(results: pathlib.Path) -> dict:
         "demo_trials": _int(demo["trials"]),
         "demo_artifacts": WORDS.get(demo["n_artifacts"], str(demo["n_artifacts"])),
         "demo_horizon": f"{demo['horizon_s']:g}",
+        "label_noise": label_noise_md(results / "when/label_noise.json"),
+        "when_tune_seeds": _seeds(tune["track_seed"], tune["trials"]),
     }
+
+
+def label_noise_md(path: pathlib.Path) -> str:
+    """The label-noise replay (`sweep --replay`) as a table, one row per target."""
+    rows = json.loads(path.read_text())
+    lines = ["| target | switches replayed (0.3-0.9 m) | same switch step | labels agreeing | "
+             "1 -> 0 / 0 -> 1 | success recorded / replayed | batch: sweep / replay |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['target']} | {r['n']:,} | {r['same_switch_step_pct']:.1f}% | "
+                     f"**{r['agree_pct']:.1f}%** | {r['flips_1_to_0']} / {r['flips_0_to_1']} | "
+                     f"{r['success_pct_recorded']:.1f}% / {r['success_pct_replayed']:.1f}% | "
+                     f"{r['sweep_batch']} / {r['batch']} |")
+    return "\n".join(lines)
 
 
 def _include(results: pathlib.Path, spec: str) -> str:

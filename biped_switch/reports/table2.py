@@ -127,11 +127,14 @@ def policy_on_falls_markdown(by_method: dict) -> str:
 
 
 def switch_outcomes(tracks, switch_ahead_m, progress_frac, fell, fail_kind,
-                    detect_range_m: float | None = None) -> list[dict]:
+                    detect_range_m: float | None = None, switch_output=None,
+                    switch_forced=None) -> list[dict]:
     """One record per switch into an artifact's policy: {"kind", "prev" (the artifact before it, or
     "start"), "ahead_m" (CoM to its start when switched), "outcome": "fell" (the trial fell on
     this artifact, as `failures_by_context` charges it), "crossed" (the CoM passed its end) or
-    "open" (time ran out first)}. Trials are `tracks` (terrain.Track, trial order)."""
+    "open" (time ran out first)}. Trials are `tracks` (terrain.Track, trial order). With the
+    rollout's logs (`switch_output`, `switch_forced`, per trial and slot), also "output" (the
+    rule's model output there) and "forced"."""
     if detect_range_m is None:
         detect_range_m = float(default_env_config().detect_range_m)
     out = []
@@ -145,9 +148,13 @@ def switch_outcomes(tracks, switch_ahead_m, progress_frac, fell, fail_kind,
                 continue
             fell_here = (k == last and fell[i] > 0.5
                          and int(fail_kind[i]) == ARTIFACT_KINDS.index(kind))
-            out.append({"kind": kind, "prev": "start" if k == 0 else arts[k - 1][0],
-                        "ahead_m": ahead,
-                        "outcome": "fell" if fell_here else ("crossed" if x > a1 else "open")})
+            rec = {"kind": kind, "prev": "start" if k == 0 else arts[k - 1][0], "ahead_m": ahead,
+                   "outcome": "fell" if fell_here else ("crossed" if x > a1 else "open")}
+            if switch_output is not None:
+                rec["output"] = float(switch_output[i][k])
+            if switch_forced is not None:
+                rec["forced"] = bool(switch_forced[i][k])
+            out.append(rec)
     return out
 
 
@@ -167,10 +174,14 @@ def switch_summary(records: list[dict], forced_m: float = 0.01) -> dict:
             bins = [[float(lo), round(float(lo) + 0.1, 2), int(m.sum()), int(lost[m].sum())]
                     for lo in edges for m in [((ahead >= lo) | (lo == 0)) & (ahead < lo + 0.1)]
                     if m.any()]
+            forced = np.array([r.get("forced", a <= forced_m) for r, a in zip(rs, ahead)])
             out.setdefault(kind, {})[prev] = {
                 "n": len(rs), "ahead_m_q": [float(q) for q in np.quantile(ahead, (0.25, 0.5, 0.75))],
-                "forced_pct": float(100 * np.mean(ahead <= forced_m)),
+                "forced_pct": float(100 * np.mean(forced)),
                 "lost_pct": float(100 * lost.mean()), "lost_by_ahead": bins}
+            if all("output" in r for r in rs):  # the rule's model output at its switches
+                o = np.array([r["output"] for r in rs])
+                out[kind][prev]["output_q"] = [float(q) for q in np.quantile(o, (0.25, 0.5, 0.75))]
     return out
 
 
@@ -180,14 +191,17 @@ def switches_markdown(by_method: dict) -> str:
     lines = []
     for kind in ARTIFACT_KINDS:
         lines += [f"**into {kind}**: switch distance before it, median (quartiles) [m]; % forced "
-                  f"(within 1 cm); % lost (fell on it)", "",
-                  "| method | after | switches | distance [m] | % forced | % lost |",
-                  "|---|---|---|---|---|---|"]
+                  f"(within 1 cm); % lost (fell on it); the rule's model output at the switch, "
+                  f"median (quartiles): an estimator's E(s), the learned rule's score", "",
+                  "| method | after | switches | distance [m] | % forced | % lost | model output |",
+                  "|---|---|---|---|---|---|---|"]
         for m, d in by_method.items():
             for prev, c in d.get(kind, {}).items():
                 q1, q2, q3 = c["ahead_m_q"]
+                o = c.get("output_q")
+                out_cell = "-" if o is None else f"{o[1]:.2f} ({o[0]:.2f}-{o[2]:.2f})"
                 lines.append(f"| {m} | {prev} | {c['n']:,} | {q2:.2f} ({q1:.2f}-{q3:.2f}) | "
-                             f"{c['forced_pct']:.1f} | {c['lost_pct']:.1f} |")
+                             f"{c['forced_pct']:.1f} | {c['lost_pct']:.1f} | {out_cell} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -254,6 +268,14 @@ def paper_claims(rows: list[dict]) -> list[dict]:
          dqn_vs_estimator),
         ("end-to-end is best (success)", ("end_to_end",),
          lambda: beats_all("end_to_end", [m for m in by if m != "end_to_end"], show_all=False)),
+        # the paper's central claim, tested with our learned rule (switching/when.py)
+        ("ours: a learned rule beats every hand-made rule (success)",
+         ("learned", *HEURISTICS, "lookup_context"),
+         lambda: beats_all("learned", (*HEURISTICS, "lookup_context"), show_all=True)),
+        ("ours: without overlap the learned rule collapses (success)",
+         ("learned", "learned_no_overlap"),
+         lambda: ("holds" if compare(by["learned_no_overlap"], by["learned"]) < 0 else "fails",
+                  f"{_cell(by['learned_no_overlap'])}; {_cell(by['learned'])}")),
     )
     out = []
     for claim, need, test in claims:

@@ -47,7 +47,7 @@ from flax.training import orbax_utils
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_env_config, default_estimator_config
-from biped_switch.learning.networks import encode, swish_mlp
+from biped_switch.learning.networks import encode, layer_sizes, swish_mlp
 from biped_switch.learning.normalizer import column_stats, standardize
 from biped_switch.names import ARTIFACT_KINDS
 from biped_switch.simulation.observation import STATE_SIZE, layout
@@ -84,16 +84,8 @@ class EstimatorNet(linen.Module):
 
 def module_from_params(net_variables) -> EstimatorNet:
     """The EstimatorNet whose layer sizes match `net_variables` (shapes are static under jit/vmap)."""
-    p = net_variables["params"]
-
-    def sizes(prefix):
-        out, i = [], 0
-        while f"{prefix}_{i}" in p:
-            out.append(int(p[f"{prefix}_{i}"]["kernel"].shape[-1]))
-            i += 1
-        return tuple(out)
-
-    return EstimatorNet(hm_hidden=sizes("hm"), hidden=sizes("mlp"))
+    return EstimatorNet(hm_hidden=layer_sizes(net_variables, "hm"),
+                        hidden=layer_sizes(net_variables, "mlp"))
 
 
 def init_params(cfg, key: jax.Array, mean=None, std=None, in_size: int | None = None) -> dict:

@@ -283,11 +283,17 @@ def controller_inputs(env, state, est_apply, est_params, rules: Rules, det_apply
         si["detect"] = det_apply(det_params, state.obs, si["yaw"])
     com_ok = jax.vmap(com_over_feet, in_axes=(0, 0, 0, 0, None, None))(
         si["body_com"], si["soles"], si["contact"], si["yaw"], rules.feet_tol_m, rules.margin_m)
-    if est_apply is None:
+    if est_apply is None or reads_context(est_apply):  # none, or computed after the detection
         probs = jnp.zeros((state.obs.shape[0], N_TARGETS))
     else:
         probs = jax.vmap(est_apply, in_axes=(0, None))(est_params, state.obs).T  # (B, N_TARGETS)
     return {**si, "com_ok": com_ok, "est_probs": probs}
+
+
+def reads_context(est_apply) -> bool:
+    """Whether a rule's model reads the active policy and the detection besides the observation
+    (`switching.when.RuleFn`: called as (params, obs, active, kind, dist_m) -> (B,) scores)."""
+    return bool(getattr(est_apply, "reads_context", False))
 
 
 def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
@@ -305,6 +311,9 @@ def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules
                                                 getattr(det_apply, "via_none", False))
             det = ci["detect"] = {**det, "kind": kind,
                                   "dist_m": jnp.where(kind >= 0, det["dist_m"], jnp.inf)}
+        if reads_context(est_apply):  # its score for the detected target, in every slot
+            sc = est_apply(est_params, state.obs, ss.active, det["kind"], det["dist_m"])
+            ci["est_probs"] = jnp.broadcast_to(sc[:, None], (sc.shape[0], N_TARGETS))
         n_before = ss.n_switches
         ss, switched = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
             ss, det["kind"], index, det["dist_m"], ci["com_ok"], ci["est_probs"], u01, rules)
@@ -331,7 +340,11 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
     cost (`table2.switch_distances`). `active_at_start` (n_envs, A): the policy index acting when
     the CoM came over each artifact's start (-1: never reached), so a fall with the wrong policy
     on an artifact shows a missed or wrong detection. `det_apply`, `det_params`: a learned detector in place of
-    the oracle (switching.detector); the switch distances stay the oracle's measure."""
+    the oracle (switching.detector); the switch distances stay the oracle's measure.
+    Per slot, the last switch there is also logged: `switch_from` (the policy it left),
+    `switch_forced` (made at the forced distance) and `switch_output` (the rule's model output
+    for the target there: the estimator's E(s), the learned rule's score; 0 for rules without
+    a model)."""
     reset_keys, k_run = episode_keys(rng, n_envs)
     if track_ids is None:
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
@@ -342,25 +355,34 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
     slots = jnp.arange(state.info["art_x0"].shape[-1])
 
     def act(c, state, live, _):
-        ss, key, ahead, on = c
+        ss, key, ahead, on, log = c
         key, k_u = jax.random.split(key)  # a carried key, split per step (the random rule's draws)
+        before = ss.active
         action, ss, ci, switched = switch_act(ss, state, live, jax.random.uniform(k_u, (n_envs,)))
-        truth = ci["truth"]
+        truth, det = ci["truth"], ci["detect"]
         at = slots[None, :] == truth["index"][:, None]
         hit = (switched & live)[:, None] & at
         ahead = jnp.where(hit, truth["dist_m"][:, None], ahead)
+        # every switch's record: from which policy, forced or not, the rule's output there
+        output = jnp.take_along_axis(ci["est_probs"], jnp.maximum(det["kind"], 0)[:, None], 1)[:, 0]
+        forced = det["dist_m"] <= rules.force_m
+        log = {"switch_from": jnp.where(hit, before[:, None], log["switch_from"]),
+               "switch_forced": jnp.where(hit, forced[:, None], log["switch_forced"]),
+               "switch_output": jnp.where(hit, output[:, None], log["switch_output"])}
         # the policy acting as the CoM comes over the artifact's start (the oracle's measure)
         first = (live & (truth["dist_m"] <= 0.0))[:, None] & at & (on < 0)
         on = jnp.where(first, ss.active[:, None], on)
-        return action, (ss, key, ahead, on), None
+        return action, (ss, key, ahead, on, log), None
 
-    ahead0 = jnp.full((n_envs, slots.shape[0]), jnp.nan, jnp.float32)
-    on0 = jnp.full((n_envs, slots.shape[0]), -1, jnp.int32)
-    ep = run_episodes(env, state, horizon, act, (init_state(n_envs), k_run, ahead0, on0),
+    shape = (n_envs, slots.shape[0])
+    ahead0 = jnp.full(shape, jnp.nan, jnp.float32)
+    on0 = jnp.full(shape, -1, jnp.int32)
+    log0 = {"switch_from": on0, "switch_forced": jnp.zeros(shape, bool), "switch_output": ahead0}
+    ep = run_episodes(env, state, horizon, act, (init_state(n_envs), k_run, ahead0, on0, log0),
                       chunk=chunk)
     return {**ep.metrics, "length": ep.length, "done": ep.done,
             "n_switches": ep.carry[0].n_switches, "switch_ahead_m": ep.carry[2],
-            "active_at_start": ep.carry[3]}
+            "active_at_start": ep.carry[3], **ep.carry[4]}
 
 
 def trace_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,

@@ -48,135 +48,16 @@ from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_
 from biped_switch.switching.estimator import sweep_name
 from biped_switch.simulation.observation import layout
 from biped_switch.simulation.rollout import episode_keys, over_devices, reset_by_track, run_episodes
-
-# the sweep config's window as a length (evaluation/multi.py's persistence rule reads it)
-N_WINDOW = len(default_sweep_config().window)
-
-
-def window_span(window) -> int:
-    """The points before the switch step of a window of consecutive step offsets around it (the
-    sweep config's `window`, (-2, -1, 0, 1, 2): 2)."""
-    w = tuple(int(o) for o in window)
-    before = -w[0]
-    if before < 0 or w != tuple(range(-before, len(w) - before)) or len(w) - before < 1:
-        raise ValueError(f"a sweep window is consecutive step offsets from <= 0 to >= 0, got {w}")
-    return before
-
-
-# ----------------------------------------------------------------------- labelling (pure)
-def touchdowns(contact, contact_prev) -> jax.Array:
-    """(2,) 1 where the left / right foot lands now: some sole touches and none did a step ago."""
-    now = contact.reshape(2, 4).max(axis=1) > 0.5
-    before = contact_prev.reshape(2, 4).max(axis=1) > 0.5
-    return now & ~before
-
-
-LEFT, RIGHT, NO_FOOT = 0, 1, -1  # `Labelling.last_foot` values
-
-
-def count_steps_past(steps, last_foot, contact, contact_prev, soles_x, art_end_x):
-    """(steps, last_foot) updated with this step's landings of feet whose centre is past the end.
-
-    A step is a landing of the other foot than the one that made the last step there, so one foot
-    landing twice (a bounce, a shuffle) is one step and `steps >= 2` means both feet have landed
-    past the end. Both feet landing together (after a hop) is one step; either foot's next
-    landing is then the second."""
-    feet_x = soles_x.reshape(2, 4).mean(axis=1)
-    land = touchdowns(contact, contact_prev) & (feet_x > art_end_x)
-    both = land[0] & land[1]
-    new = both | (land[0] & (last_foot != LEFT)) | (land[1] & (last_foot != RIGHT))
-    last = jnp.where(both, NO_FOOT, jnp.where(land[0], LEFT, jnp.where(land[1], RIGHT, last_foot)))
-    return steps + new.astype(jnp.int32), last
-
-
-class Labelling(NamedTuple):
-    """Per-env label state of a switch episode (leading batch axes allowed)."""
-
-    steps: jax.Array  # int32: steps past the artifact's end after the switch (count_steps_past)
-    last_foot: jax.Array  # int32: LEFT / RIGHT / NO_FOOT, the foot of the last step there
-    ended: jax.Array  # bool: fell, labelled, or the env's episode is over: the record is final
-    label: jax.Array  # bool
-    fell: jax.Array  # bool
-    fell_before: jax.Array  # bool: fell before the switch (no sample)
-
-
-def labelling_init(shape=()) -> Labelling:
-    z = jnp.zeros(shape, jnp.int32)
-    f = jnp.zeros(shape, bool)
-    return Labelling(z, z + NO_FOOT, f, f, f, f)
-
-
-def is_live(lab: Labelling, t, horizon) -> jax.Array:
-    """The episode still runs at control step t: not ended and within the horizon (a timeout
-    leaves the label 0)."""
-    return ~lab.ended & (t < horizon)
-
-
-def label_step(lab: Labelling, live, switched_before, switched, contact, contact_prev, soles_x,
-               art_end_x, fell, success, done, steps_past: int) -> Labelling:
-    """One control step of the label rule for one env.
-
-    `contact`, `contact_prev`, `soles_x` are this step's (the observation's) sole flags and sole x
-    [m]; `fell`, `success`, `done` (bool) come from the env step taken from it. Landings count
-    from the step after the switch (`switched_before`). Label 1 once `steps_past` steps are made
-    past the end (or the finish is reached) and that step's env step does not fall; a fall first,
-    the env's episode ending or the horizon leave 0. Once labelled the record is final."""
-    steps, last = count_steps_past(lab.steps, lab.last_foot, contact, contact_prev, soles_x,
-                                   art_end_x)
-    counting = live & switched_before
-    steps = jnp.where(counting, steps, lab.steps)
-    last = jnp.where(counting, last, lab.last_foot)
-    fell = live & fell
-    label = live & switched & ((steps >= steps_past) | success) & ~fell
-    ended = lab.ended | fell | label | (live & done)
-    return Labelling(steps, last, ended, lab.label | label, lab.fell | fell,
-                     lab.fell_before | (fell & ~switched))
-
-
-class Window(NamedTuple):
-    """Rolling record of observations around a switch, per env: a window of `before` points
-    before the switch step, the switch step and the points after it (the sweep config's
-    `window`; the array shapes carry the sizes)."""
-
-    ring: jax.Array  # (before + 1, O): the last observations up to now, oldest first
-    window: jax.Array  # (len(window), O)
-    n_after: jax.Array  # int32: observations after the switch written so far
-
-
-def window_init(obs, window=None) -> Window:
-    """An empty record for step offsets `window` (default: the sweep config's)."""
-    window = default_sweep_config().window if window is None else window
-    before = window_span(window)
-    ring = jnp.broadcast_to(obs, (before + 1,) + obs.shape)
-    return Window(ring, jnp.zeros((len(window),) + obs.shape, obs.dtype), jnp.zeros((), jnp.int32))
-
-
-def window_update(w: Window, obs, switched_now, switched_before) -> Window:
-    """`obs` is the observation the (possibly new) policy acts on at this step.
-
-    At the switch step t the ring (t-2, t-1, t with the default window) fills the first slots;
-    each of the next steps writes one slot. An episode that ends first repeats its last
-    observation."""
-    before, n = w.ring.shape[0] - 1, w.window.shape[0]
-    ring = jnp.concatenate([w.ring[1:], obs[None]])
-    window = jnp.where(switched_now, w.window.at[: before + 1].set(ring), w.window)
-    write = switched_before & (w.n_after < n - before - 1)
-    slot = before + 1 + w.n_after
-    window = jnp.where(write, window.at[jnp.minimum(slot, n - 1)].set(obs), window)
-    return Window(ring, window, w.n_after + write.astype(jnp.int32))
-
-
-def window_fill(w: Window) -> jax.Array:
-    """The window with missing after-switch slots (episode ended) filled by the last written."""
-    before, n = w.ring.shape[0] - 1, w.window.shape[0]
-    idx = jnp.minimum(jnp.arange(n), before + w.n_after)
-    return w.window[idx]
+from biped_switch.switching.labels import (label_step, labelling_init, window_fill, window_init,
+                                           window_update)
 
 
 # ----------------------------------------------------------------------- the rollout
 def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, switch_max_m: float,
                   steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0,
-                  end_offset_m: float = 0.0, target_index=None, window=None) -> dict:
+                  end_offset_m: float = 0.0, target_index=None, window=None,
+                  switch_min_m: float = 0.0, approach_queries: int = 0, switch_at_m=None,
+                  reset_keys=None) -> dict:
     """A batch of switch episodes (one env per track id), switching before artifact
     `target_index` (B,) of each track (default 0: the first; context sweeps switch before the 2nd).
 
@@ -184,28 +65,49 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     `guide_scale` > 0 turns the scripted gait's guide forces on and `end_offset_m` moves the line
     past which steps count from the artifact's end (tests only: the guided robot never crosses an
     artifact, so only a line moved back gives it labels of 1). `window`: the step offsets of the
-    observations recorded around the switch (default: the sweep config's)."""
+    observations recorded around the switch (default: the sweep config's).
+
+    The switch distance is U(`switch_min_m`, `switch_max_m`) [m], or `switch_at_m` (B,) where
+    given (a replay of recorded switches, with their episodes' `reset_keys` (B, 2)).
+    `approach_queries` K > 0 also records, per episode, the
+    observation at the first step within each of K distances U(switch distance, switch_max_m)
+    of the target (before or at the switch: the source policy still acts), and the distance
+    there: what a rule deciding *when* to switch sees earlier on the same approach."""
     n = track_ids.shape[0]
-    reset_keys, k_u = episode_keys(rng, n)
+    keys, k_u = episode_keys(rng, n)
+    reset_keys = keys if reset_keys is None else reset_keys
     state = reset_by_track(env, reset_keys, track_ids, guide_scale=guide_scale)
-    switch_at = jax.random.uniform(k_u, (n,), maxval=switch_max_m)
+    k_q = jax.random.fold_in(k_u, 1)  # k_u itself draws the paper's switch distances, as before
+    if switch_at_m is None:
+        switch_at = jax.random.uniform(k_u, (n,), minval=switch_min_m, maxval=switch_max_m)
+    else:
+        switch_at = jnp.asarray(switch_at_m, jnp.float32)
+    q_at = switch_at[:, None] + jax.random.uniform(k_q, (n, approach_queries)) * (
+        switch_max_m - switch_at[:, None])
     tidx = (jnp.zeros(n, jnp.int32) if target_index is None
             else jnp.asarray(target_index, jnp.int32))
     carry = {"active": sources.astype(jnp.int32), "switched": jnp.zeros(n, bool),
              "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
-             "win": jax.vmap(lambda o: window_init(o, window))(state.obs)}
+             "win": jax.vmap(lambda o: window_init(o, window))(state.obs),
+             "q_obs": jnp.zeros((n, approach_queries) + state.obs.shape[1:], state.obs.dtype),
+             "q_dist_m": jnp.full((n, approach_queries), jnp.nan),
+             "q_done": jnp.zeros((n, approach_queries), bool)}
     label_steps = jax.vmap(functools.partial(label_step, steps_past=steps_past))
 
     def act(c, state, live, _):
         si = jax.vmap(env.switch_inputs)(state)
         det = si["detect"]
-        now = (live & ~c["switched"] & (det["kind"] >= 0) & (det["index"] == tidx)
-               & (det["dist_m"] <= switch_at))
+        near = live & ~c["switched"] & (det["kind"] >= 0) & (det["index"] == tidx)
+        now = near & (det["dist_m"] <= switch_at)
         active = jnp.where(now, target, c["active"])
         win = jax.vmap(window_update)(c["win"], state.obs, now, c["switched"] & live)
+        q_hit = near[:, None] & ~c["q_done"] & (det["dist_m"][:, None] <= q_at)
+        q_obs = jnp.where(q_hit[..., None], state.obs[:, None], c["q_obs"])
+        q_dist = jnp.where(q_hit, det["dist_m"][:, None], c["q_dist_m"])
         action = pol.select(pol.all_actions(apply, params, state.obs), active)
         return action, {**c, "active": active, "switched": c["switched"] | now, "win": win,
-                        "dist_m": jnp.where(now, det["dist_m"], c["dist_m"])}, (si, c["switched"])
+                        "dist_m": jnp.where(now, det["dist_m"], c["dist_m"]), "q_obs": q_obs,
+                        "q_dist_m": q_dist, "q_done": c["q_done"] | q_hit}, (si, c["switched"])
 
     def record(c, aux, state, nxt, live):
         si, switched_before = aux
@@ -229,7 +131,8 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     return {"window": jax.vmap(window_fill)(c["win"]), "label": lab.label, "valid": valid,
             "switch_dist_m": c["dist_m"], "switch_at_m": switch_at, "source": sources,
             "track_id": track_ids, "fell": lab.fell, "steps": ep.length.astype(jnp.int32),
-            "steps_past": lab.steps}
+            "steps_past": lab.steps, "approach_obs": c["q_obs"], "approach_dist_m": c["q_dist_m"],
+            "approach_valid": c["q_done"], "approach_at_m": q_at}
 
 
 def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
@@ -271,35 +174,114 @@ def make_context_env(kinds, init: str, difficulty: float = 1.0, **overrides):
                             seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
 
 
-def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_index=None):
+def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_index=None,
+                replay: bool = False):
     """(params, rng, track_ids, sources) -> batch results, split over all local devices;
-    `target_index` (n_tracks,) the artifact switched before on each track (default: the first)."""
+    `target_index` (n_tracks,) the artifact switched before on each track (default: the first).
+    With `replay`: (params, rng, track_ids, sources, switch_at_m, reset_keys)."""
     horizon = int(round(cfg.horizon_s / env.dt))
     tgt = pol.POLICY_INDEX[target]
     tidx_of = None if target_index is None else jnp.asarray(target_index, jnp.int32)
 
-    def one(params, rng, ids, src):
+    def one(params, rng, ids, src, switch_at_m=None, reset_keys=None):
         return sweep_rollout(env, apply, params, rng, ids, src, tgt, cfg.switch_max_m,
                              cfg.steps_past, horizon, guide_scale=guide_scale,
                              target_index=None if tidx_of is None else tidx_of[ids],
-                             window=tuple(cfg.window))
+                             window=tuple(cfg.window), switch_min_m=cfg.switch_min_m,
+                             approach_queries=0 if replay else int(cfg.approach_queries),
+                             switch_at_m=switch_at_m, reset_keys=reset_keys)
 
     return over_devices(one, n_shared=1)
 
 
+def sweep_env(init: str, target: str, cfg, runs, n_tracks: int, stand_in=None,
+              backend: str = "auto", context: bool = False):
+    """(env, policy suite, source per track, target artifact index per track) of a sweep; the
+    last two are None for the paper's sweep (sources cycle, the first artifact)."""
+    overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in)
+    if context:
+        kinds, track_src, track_tidx = context_plan(target, n_tracks)
+        env = make_context_env(kinds, init, cfg.difficulty, backend=backend, **overrides)
+    else:
+        track_src = track_tidx = None
+        env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
+    return env, pol.load_suite(init, env, runs, stand_in=stand_in), track_src, track_tidx
+
+
+def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, backend="auto",
+                  tol_m: float = 1e-4, band_m=(0.3, 0.9), seed: int = 0, print_fn=print) -> dict:
+    """Label noise: `n` recorded switches of a sweep (`data`, its merged npz) within `band_m`,
+    replayed from their own starts at their own switch distances (+ `tol_m`, so a last-bit
+    difference in the distance picks the same control step) in a program compiled for another
+    batch size. A trajectory is chaotic, so float rounding that differs with the batch can flip a
+    label; the agreement rate is the labels' noise floor."""
+    meta = data["meta"]
+    cfg = default_sweep_config()
+    for k, v in meta["config"].items():  # the sweep's own settings (JSON lists back to tuples)
+        if k in cfg:
+            cfg[k] = tuple(v) if isinstance(cfg[k], tuple) else v
+    if batch == int(cfg.batch):
+        raise ValueError(f"replay batch {batch} equals the sweep's: choose another, so that the "
+                         f"program differs")
+    env, suite, track_src, track_tidx = sweep_env(
+        meta["init"], meta["target"], cfg, runs, int(meta["n_tracks"]), stand_in, backend,
+        bool(meta.get("context")))
+    sample_idx = np.unique(data["sample"])  # global episode index: batch b * sweep batch + i
+    first = np.searchsorted(data["sample"], sample_idx)
+    dist = data["switch_dist_m"][first]
+    pick = np.flatnonzero((dist >= band_m[0]) & (dist <= band_m[1]))
+    pick = np.sort(np.random.default_rng(seed).choice(pick, min(n, len(pick)), replace=False))
+    g = sample_idx[pick]
+    b_orig, i_orig = g // int(cfg.batch), g % int(cfg.batch)
+    keys = np.stack([np.asarray(episode_keys(jax.random.fold_in(
+        jax.random.PRNGKey(int(meta["seed"])), int(b)), int(cfg.batch))[0][int(i)])
+        for b, i in zip(b_orig, i_orig)])
+    runner = make_runner(env, suite.apply, meta["target"], cfg, target_index=track_tidx,
+                         replay=True)
+    labels, dists, t0 = [], [], time.perf_counter()
+    for s in range(0, len(g), batch):
+        idx = np.arange(s, s + batch) % len(g)  # the last batch wraps; its extra rows are dropped
+        out = jax.device_get(runner(suite.params, jax.random.PRNGKey(0),
+                                    jnp.asarray(data["track_id"][first[pick[idx]]], jnp.int32),
+                                    jnp.asarray(data["source"][first[pick[idx]]], jnp.int32),
+                                    jnp.asarray(dist[pick[idx]] + tol_m, jnp.float32),
+                                    jnp.asarray(keys[idx])))
+        labels.append(np.asarray(out["label"])[: min(batch, len(g) - s)])
+        dists.append(np.asarray(out["switch_dist_m"])[: min(batch, len(g) - s)])
+        print_fn(f"[replay {meta['target']}] {min(s + batch, len(g))}/{len(g)} switches "
+                 f"({time.perf_counter() - t0:.0f} s)")
+    new = np.concatenate(labels).astype(int)
+    old = data["label"][first[pick]].astype(int)
+    # the same start and the same approach switch at the same control step (a check of the replay)
+    same_step = np.abs(np.concatenate(dists) - dist[pick]) < 1e-3
+    return {"target": meta["target"], "n": int(len(g)), "batch": batch,
+            "same_switch_step_pct": round(100 * float(same_step.mean()), 2),
+            "sweep_batch": int(cfg.batch), "band_m": list(band_m),
+            "agree_pct": round(100 * float((new == old).mean()), 2),
+            "flips_1_to_0": int(((old == 1) & (new == 0)).sum()),
+            "flips_0_to_1": int(((old == 0) & (new == 1)).sum()),
+            "success_pct_recorded": round(100 * float(old.mean()), 2),
+            "success_pct_replayed": round(100 * float(new.mean()), 2),
+            "wall_s": round(time.perf_counter() - t0, 1)}
+
+
 # ----------------------------------------------------------------------- the sweep driver
 def _split(window: np.ndarray, lay):
-    """(robot state, heightmap) of observations: exactly the estimator's inputs (the `ObsLayout`
-    `lay`'s state and heightmap), without the phase clock or the one-hot after them."""
+    """(robot state, heightmap, phase clock) of observations: the estimator's inputs (the
+    `ObsLayout` `lay`'s state and heightmap) and the gait clock the policies act on, without the
+    one-hot after them."""
     state = window[..., lay.state].astype(np.float32)
     hm = window[..., lay.heightmap].astype(np.float16)
-    return state, hm
+    return state, hm, window[..., lay.phase].astype(np.float32)
 
 
 def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
-    """A batch's valid samples as len(window) rows each (the estimator's fields), and their count."""
+    """A batch's valid samples as len(window) rows each (the estimator's fields and the phase
+    clock), and their count. Per sample, not per row: the `approach_*` records (K queries each:
+    state, heightmap, phase, distance [m], valid) and `sample_switch_dist_m` / `sample_label`."""
     v = np.asarray(out["valid"])
-    state, hm = _split(np.asarray(out["window"])[v], lay)
+    state, hm, phase = _split(np.asarray(out["window"])[v], lay)
+    a_state, a_hm, a_phase = _split(np.asarray(out["approach_obs"])[v], lay)
     n_s, n_w = int(v.sum()), len(window)
     k = np.repeat(np.arange(n_s), n_w)
 
@@ -307,6 +289,14 @@ def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
         return np.repeat(np.asarray(x)[v], n_w).astype(dtype)
 
     return {"state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
+            "phase": phase.reshape(n_s * n_w, phase.shape[-1]),
+            "approach_state": a_state, "approach_heightmap": a_hm, "approach_phase": a_phase,
+            "approach_dist_m": np.asarray(out["approach_dist_m"])[v].astype(np.float32),
+            "approach_valid": np.asarray(out["approach_valid"])[v],
+            "sample_switch_dist_m": np.asarray(out["switch_dist_m"])[v].astype(np.float32),
+            "sample_label": np.asarray(out["label"])[v].astype(np.int8),
+            "sample_track_id": np.asarray(out["track_id"])[v].astype(np.int32),
+            "sample_source": np.asarray(out["source"])[v].astype(np.int8),
             "label": rows(out["label"], np.int8),
             "sample": (first_sample + np.flatnonzero(v)[k]).astype(np.int32),
             "offset": np.tile(np.asarray(window, np.int8), n_s),
@@ -318,14 +308,15 @@ def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
 # Every session adding parts to a sweep must share these; of the config only the keys below may
 # differ (more points extend a sweep; the lookup bin applies to the merged data only).
 RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed", "context")
-PROGRESS_CONFIG_KEYS = ("n_points", "lookup_bin_m")
+PROGRESS_CONFIG_KEYS = ("n_points", "lookup_bin_m", "approach_queries")  # extra records only
+CONFIG_KEY_DEFAULTS = {"switch_min_m": 0.0}  # what sweeps made before a key existed used
 
 
 def resume_key(meta: dict) -> dict:
     """The part of a sweep's meta (as JSON) that the parts already made depend on."""
     key = json.loads(json.dumps({k: meta.get(k) for k in RESUME_KEYS}, default=str))
     key["context"] = bool(key["context"])  # absent in sweeps made before context sweeps existed
-    key["config"] = {k: v for k, v in (key["config"] or {}).items()
+    key["config"] = {k: v for k, v in {**CONFIG_KEY_DEFAULTS, **(key["config"] or {})}.items()
                      if k not in PROGRESS_CONFIG_KEYS}
     return key
 
@@ -358,14 +349,8 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
     name = sweep_name(init, context)
     part_dir = out_dir / name / target
     part_dir.mkdir(parents=True, exist_ok=True)
-    overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in)
-    if context:
-        kinds, track_src, track_tidx = context_plan(target, n_tracks)
-        env = make_context_env(kinds, init, cfg.difficulty, backend=backend, **overrides)
-    else:
-        track_src = track_tidx = None
-        env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
-    suite = pol.load_suite(init, env, runs, stand_in=stand_in)
+    env, suite, track_src, track_tidx = sweep_env(init, target, cfg, runs, n_tracks, stand_in,
+                                                  backend, context)
     meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
             "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
             "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale,
@@ -441,7 +426,9 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
 
 def merge_parts(part_dir: pathlib.Path, path: pathlib.Path, meta: dict) -> pathlib.Path:
     parts = [dict(np.load(p)) for p in sorted(part_dir.glob("part_*.npz"))]
-    merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    # parts made before a field was recorded lack it: the merge keeps the fields all parts have
+    keys = [k for k in parts[0] if all(k in p for p in parts)]
+    merged = {k: np.concatenate([p[k] for p in parts]) for k in keys}
     merged["meta"] = np.array(json.dumps(meta, default=str))
     np.savez_compressed(path, **merged)
     return path

@@ -1,0 +1,197 @@
+"""Trains the learned "when" switch rule and checks it offline (`switching/when.py`).
+
+    python -m biped_switch.when --init stand [--data runs/sweeps_when] [--out models/switch_when]
+
+Reads the context sweeps with approach records (`python -m biped_switch.sweep --init stand
+--context --switch-min 0.2 --out runs/sweeps_when`), trains the ensemble, and scores it on the
+held-out tracks' switches at 0.3-0.9 m beside the paper's estimator and the (target, active
+policy, distance) table: AUC, Brier score and calibration error per target and source
+(experiments/results/when/offline.md). The model goes to <out>/<init>.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_switch.config import default_when_config
+from biped_switch.names import ARTIFACT_KINDS
+from biped_switch.reports import when as when_report
+from biped_switch.simulation.observation import layout
+from biped_switch.config import default_env_config
+from biped_switch.switching import estimator as est_lib
+from biped_switch.switching import when
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m biped_switch.when", description=__doc__.split("\n")[0])
+    p.add_argument("--init", default="stand", choices=("stand", "random"))
+    p.add_argument("--data", default="runs/sweeps_when", help="the sweeps' --out")
+    p.add_argument("--out", default="models/switch_when")
+    p.add_argument("--estimators", default="models/estimators",
+                   help="the paper's estimators, scored beside it offline")
+    p.add_argument("--results", default="experiments/results/when")
+    p.add_argument("--epochs", type=int, default=None)
+    p.add_argument("--ensemble", type=int, default=None)
+    p.add_argument("--tune", action="store_true",
+                   help="instead of training: run the trained rule on tuning tracks (TUNE_TRACK_SEED"
+                        " + i, never Table II's) for each margin of the config's margin_choices, "
+                        "then for longer runs at the best margin; writes RESULTS/tuning.md")
+    p.add_argument("--trials", type=int, default=400, help="tuning trials per setting")
+    p.add_argument("--persist", type=int, nargs="+", default=[2, 3],
+                   help="run lengths tried at the best margin (1 is always tried)")
+    p.add_argument("--later", nargs="+", default=["model", "table"], choices=("model", "table"),
+                   help="where the later moments' P come from, each tried")
+    p.add_argument("--margins", type=float, nargs="+", default=None,
+                   help="margins tried (default: the config's margin_choices)")
+    p.add_argument("--band", type=float, nargs="+", default=[],
+                   help="band tolerances tried at the best margin (1: no band, always tried)")
+    p.add_argument("--runs", default="runs")
+    a = p.parse_args(argv)
+    cfg = default_when_config()
+    if a.tune:
+        if a.trials < 1 or min(a.persist) < 1:
+            p.error(f"--trials and --persist must be >= 1, got {a.trials}, {a.persist}")
+        if any(not 0 < b <= 1 for b in a.band):
+            p.error(f"--band values must lie in (0, 1], got {a.band}")
+        a.margins = list(cfg.margin_choices if a.margins is None else a.margins)
+        return _tune(a)
+    if a.epochs is not None:
+        cfg.epochs = a.epochs
+    if a.ensemble is not None:
+        cfg.ensemble = a.ensemble
+    if cfg.epochs < 1 or cfg.ensemble < 1:
+        p.error(f"--epochs and --ensemble must be >= 1, got {cfg.epochs}, {cfg.ensemble}")
+    grid = layout(default_env_config()).grid
+    name = est_lib.sweep_name(a.init, True)
+    t0 = time.perf_counter()
+    rows, est_p, sweeps = [], [], {}
+    for target in ARTIFACT_KINDS:
+        path = pathlib.Path(a.data) / name / f"{target}.npz"
+        if not path.exists():
+            raise FileNotFoundError(f"no sweep at {path}: python -m biped_switch.sweep --init "
+                                    f"{a.init} --context --switch-min 0.2 --targets {target} "
+                                    f"--out {a.data}")
+        data = est_lib.load_data(path)
+        r = when.rows_from_sweep(data, target, grid)
+        rows.append(r)
+        sweeps[target] = {"data": str(path), "samples": int(len(data["sample_label"])),
+                          "wall_s": (data["meta"] or {}).get("wall_s_total"),
+                          "switch_min_m": data["meta"]["config"].get("switch_min_m")}
+        # the paper's estimator on the switch rows (the wait rows have no such prediction)
+        est_params, _ = est_lib.load_estimator(pathlib.Path(a.estimators) / f"{a.init}_{target}")
+        at0 = data["offset"] == 0
+        x = np.concatenate([data["state"][at0], data["heightmap"][at0].astype(np.float32)], -1)
+        f = jax.jit(lambda x: est_lib.predict(est_params, x))
+        pe = np.concatenate([np.asarray(f(jnp.asarray(x[i:i + 4096])))
+                             for i in range(0, len(x), 4096)])
+        est_p.append(np.concatenate([pe, np.full(len(r.label) - len(pe), np.nan)]))
+        print(f"{target}: {len(r.label):,} rows ({int(r.now.sum()):,} switches), "
+              f"{100 * r.label[r.now].mean():.1f}% success", flush=True)
+    rows, est_p = when.concat_rows(rows), np.concatenate(est_p)
+    data_s = time.perf_counter() - t0
+    params, metrics = when.train(rows, cfg, print_fn=lambda *s: print(*s, flush=True))
+    val = when.is_val(rows.track, cfg)
+    tr, va = when.take(rows, ~val), when.take(rows, val)
+    preds = {"learned": when.predict_rows(params, va), "table": when.table_predict(tr, va),
+             "paper_estimator": est_p[val]}
+    scores = when.offline_scores(preds, va)
+    out = pathlib.Path(a.out) / a.init
+    meta = {"init": a.init, "config": cfg.to_dict(), "sweeps": sweeps, "grid": list(grid),
+            "parts": list(when.PARTS), "widths": when.part_widths(grid),
+            **{k: v for k, v in metrics.items() if k != "history"},
+            "data_s": round(data_s, 1), "device": str(jax.devices()[0])}
+    est_lib.save_estimator(out, params, meta)
+    res = pathlib.Path(a.results)
+    res.mkdir(parents=True, exist_ok=True)
+    from biped_switch.stats import reliability
+    rel = {}
+    for k, pk in preds.items():
+        m = va.now & ~np.isnan(pk) & (va.d_now >= when.OFFLINE_BAND_M[0])
+        rel[k] = {kk: np.asarray(v).tolist() for kk, v in reliability(pk[m], va.label[m]).items()}
+    doc = {"model": str(out), "scores": scores, "reliability": rel, "train": meta,
+           "history": metrics["history"], "band_m": list(when.OFFLINE_BAND_M)}
+    (res / "offline.json").write_text(json.dumps(doc, indent=1, default=float))
+    when_report.write(doc, res)
+    print(f"saved {out}; offline check in {res}/offline.md "
+          f"({time.perf_counter() - t0:.0f} s in all, training {metrics['train_s']:.0f} s)")
+    return 0
+
+
+def _tune(a) -> int:
+    """Success on the tuning tracks for each (margin, run length): one compiled rollout, the
+    margin and run length being traced values of the rules."""
+    from biped_switch.config import TUNE_TRACK_SEED
+    from biped_switch.evaluation import multi
+    from biped_switch.stats import episode_table
+
+    t0 = time.perf_counter()
+    method = "learned" if a.init == "stand" else "learned_no_overlap"
+    rows, setups = [], {}
+
+    res = pathlib.Path(a.results)
+    name = "tuning" if a.init == "stand" else f"tuning_{a.init}"
+    model = str(pathlib.Path(a.out) / a.init)
+    old = json.loads((res / f"{name}.json").read_text()) if (res / f"{name}.json").exists() else {}
+    if old and (old.get("model"), old.get("trials")) == (model, a.trials):
+        # a tuning in steps: this command's settings join the earlier ones (band 1: none)
+        rows = [{"band_tol": 1.0, **r} for r in old["rows"]]
+    keys = ("later_from", "band_tol", "margin", "persist_steps")
+
+    def best():
+        return max(rows, key=lambda r: r["success_pct"])
+
+    def run(later_from, band_tol, margin, persist):
+        if any(tuple(r.get(k) for k in keys) == (later_from, band_tol, margin, persist)
+               for r in rows):
+            return  # measured by an earlier step
+        if (later_from, band_tol) not in setups:  # a compiled rollout per pair: they set the program
+            cfg = default_when_config()
+            cfg.later_from, cfg.band_tol = later_from, band_tol
+            setups[later_from, band_tol] = multi.MultiSetup(
+                a.init, a.trials, min(250, a.trials), 60.0, a.runs, None, a.estimators,
+                "experiments/results/lookup", False, False, track_seed=TUNE_TRACK_SEED,
+                when_dir=a.out, when_cfg=cfg)
+        setup = setups[later_from, band_tol]
+        setup.variants[method] = {"threshold": float(margin), "persist_steps": int(persist)}
+        r = episode_table(setup.evaluate(method, a.trials, 0))
+        rows.append({"later_from": later_from, "band_tol": float(band_tol), "margin": float(margin),
+                     "persist_steps": int(persist), "trials": a.trials,
+                     "success_pct": r["success_pct"], "success_ci": r["success_ci"],
+                     "fail_on": r["fail_on"]})
+        print(f"later from the {later_from}, band {band_tol:g}, margin {margin:+.2f}, {persist} "
+              f"step(s): success {r['success_pct']:.1f}% ({r['success_ci'][0]:.1f}-"
+              f"{r['success_ci'][1]:.1f})", flush=True)
+
+    for later_from in a.later:  # 1. the margin, anywhere in range
+        for m in a.margins:
+            run(later_from, 1.0, float(m), 1)
+    for b in a.band:  # 2. the band, at the best margin
+        run(best()["later_from"], float(b), best()["margin"], 1)
+    for k in a.persist:  # 3. the run length, at the best of those
+        run(best()["later_from"], best()["band_tol"], best()["margin"], k)
+    chosen = best()
+    res.mkdir(parents=True, exist_ok=True)
+    doc = {"init": a.init, "track_seed": TUNE_TRACK_SEED, "trials": a.trials, "rows": rows,
+           "chosen": {k: chosen[k] for k in keys},
+           "wall_s": round(time.perf_counter() - t0 + (old.get("wall_s", 0) if old else 0), 1),
+           "device": str(jax.devices()[0]), "model": model}
+    (res / f"{name}.json").write_text(json.dumps(doc, indent=1))
+    (res / f"{name}.md").write_text(when_report.tuning_markdown(doc))
+    print(f"chosen: later from the {chosen['later_from']}, band {chosen['band_tol']:g}, "
+          f"margin {chosen['margin']:g}, "
+          f"{chosen['persist_steps']} step(s) "
+          f"(set them in config.default_when_config); {res / name}.md")
+    return 0
+
+
+if __name__ == "__main__":
+    from biped_switch.cli import run
+
+    run(main)
