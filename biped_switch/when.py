@@ -20,11 +20,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_switch.config import default_when_config
+from biped_switch.config import default_env_config, default_when_config
 from biped_switch.names import ARTIFACT_KINDS
 from biped_switch.reports import when as when_report
 from biped_switch.simulation.observation import layout
-from biped_switch.config import default_env_config
 from biped_switch.switching import estimator as est_lib
 from biped_switch.switching import when
 

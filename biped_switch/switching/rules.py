@@ -11,7 +11,9 @@ target, and the rule decides at each control step whether the active policy hand
   com_over_feet  when the whole-body CoM is over the support polygon of the touching soles and the
                  feet are within `feet_tol_m` of each other fore-aft
   estimator      when the target's switch estimator gives E(s) >= `estimator_threshold`, on
-                 `persist_steps` control steps in a row (1, the paper's rule: the first such step)
+                 `persist_steps` control steps in a row (1, the paper's rule: the first such step);
+                 Table II's `learned` row runs this rule on the learned when rule's score
+                 (switching/when.py: P(now) - best later P) against its margin
 With setup policies (ours: switching/setup.py), a pair (active -> target) that has one switches
 into it as soon as the target is detected, and the setup policy hands over to the target's policy
 at its own hand-over distance (the one it was trained with), whatever the method. A walk-on pair
@@ -237,7 +239,9 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
     """One env, one control step: (new controller state, switched now?).
 
     det_*: the oracle detection (kind -1 when nothing is in range), com_ok: com_over_feet,
-    est_probs (N_TARGETS,): every estimator's output on the current observation, u01: a uniform
+    est_probs (N_TARGETS,): every estimator's output on the current observation (a model that
+    reads the context, the learned when rule: its score for the detected target in every slot;
+    the estimator rule then compares that score with the threshold, its margin), u01: a uniform
     draw in [0, 1) used when a new artifact is detected (random method)."""
     seen = det_kind >= 0
     kind = jnp.maximum(det_kind, 0)
