@@ -10,6 +10,7 @@ MODELS_DIR = REPO / "models"
 COMMITTED_DIR = MODELS_DIR / "policies"  # final (or resume) checkpoint of every PPO run, committed
 BASELINE_DIR = MODELS_DIR / "baselines"  # committed DQN runs, as models/policies/ for PPO
 ESTIMATOR_DIR = MODELS_DIR / "estimators"  # committed switch estimators, one folder per target
+WHEN_DIR = MODELS_DIR / "switch_when"  # the learned when rule, one folder per suite
 
 # Defaults of the command lines' shared flags, relative to the working directory.
 RUNS = "runs"  # --runs: the parent of training run folders

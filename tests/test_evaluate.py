@@ -237,6 +237,17 @@ def test_retrain_cost_from_logs(tmp_path, monkeypatch):
     md = table3.table3_markdown(table3.retrain_cost(runs, res))
     assert "| ours | 1.90 |" in md and "| end_to_end | 3.00 |" in md
     assert all(r["status"] == "complete" for r in rows.values())  # no goal or curriculum recorded
+    # ours with the learned when rule: the policy, its three sweeps and its training (from meta)
+    when_dir = tmp_path / "when"
+    assert "ours_learned" not in {r["method"] for r in table3.retrain_cost(
+        runs, res, when_dir=when_dir)["rows"]}
+    (when_dir / "stand").mkdir(parents=True)
+    (when_dir / "stand" / "meta.json").write_text(json.dumps({
+        "sweeps": {k: {"wall_s": 720.0} for k in ("jumps", "gaps", "stairs")},
+        "train_s": 30.0, "data_s": 6.0, "device": "cpu:0"}))
+    rows = {r["method"]: r for r in table3.retrain_cost(runs, res, when_dir=when_dir)["rows"]}
+    assert rows["ours_learned"]["hours"] == pytest.approx(1.0 + 3 * 0.2 + 0.01)
+    assert rows["ours_learned"]["parts"]["when sweep gaps"] == pytest.approx(0.2)
 
 
 def test_retrain_cost_flags_unfinished_and_stand_in_runs(tmp_path):

@@ -17,9 +17,11 @@ from biped_switch.reports import provenance as prov
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import SETUP_SUITE
 from biped_switch.names import ARTIFACT_KINDS
+from biped_switch.paths import WHEN_DIR
 
 
-def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand") -> dict:
+def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand",
+                 when_dir: pathlib.Path = WHEN_DIR) -> dict:
     """Table III from recorded logs: hours to add a new terrain to a two-behaviour suite.
 
     ours: one new policy (the mean training wall time of the artifact policies) plus, for each
@@ -83,6 +85,18 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand")
                      "status": status(pol_notes + data_notes
                                       + [x for r in setup_r.values() for x in r["notes"]], ours_ok),
                      "paper_hours": paper.TABLE3_H["ours"]})
+    # ours with the learned when rule: the new policy, its context sweeps with approach records
+    # and the rule's training, in place of the paper's sweeps and estimators
+    when_meta = pathlib.Path(when_dir) / init / "meta.json"
+    if when_meta.exists():
+        wm = json.loads(when_meta.read_text())
+        parts = {"new policy": policy_h,
+                 **{f"when sweep {k}": v["wall_s"] / 3600 for k, v in wm["sweeps"].items()},
+                 "when rule": (wm["train_s"] + wm.get("data_s", 0.0)) / 3600}
+        ok = policy_h is not None and all(v is not None for v in parts.values())
+        rows.append({"method": "ours_learned", "hours": sum(parts.values()) if ok else None,
+                     "parts": parts, "device": wm.get("device", "?"),
+                     "status": status(pol_notes, ok), "paper_hours": paper.TABLE3_H["ours"]})
     dqn_dir = runs_lib.find_dqn(runs, init)
     dqn = runs_lib.run_record(runs_lib.latest_checkpoint(dqn_dir) if dqn_dir else None)
     if dqn is None:
