@@ -80,7 +80,7 @@ def main(argv=None) -> int:
         data = est_lib.load_data(path)
         r = when.rows_from_sweep(data, target, grid)
         rows.append(r)
-        sweeps[target] = {"data": str(path), "samples": int(len(data["sample_label"])),
+        sweeps[target] = {"data": str(path), "samples": int((data["offset"] == 0).sum()),
                           "wall_s": (data["meta"] or {}).get("wall_s_total"),
                           "switch_min_m": data["meta"]["config"].get("switch_min_m")}
         # the paper's estimator on the switch rows (the wait rows have no such prediction)

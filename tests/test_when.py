@@ -88,20 +88,19 @@ def _sweep_data(n_s=6, seed=0):
             "approach_heightmap": rng.uniform(size=(n_s, 2, 2400)).astype(np.float16),
             "approach_phase": rng.normal(size=(n_s, 2, 2)).astype(np.float32),
             "approach_dist_m": dist[:, None] + np.array([[0.1, 0.2]], np.float32),
-            "approach_valid": np.array([[True, i != 0] for i in range(n_s)]),
-            "sample_switch_dist_m": dist, "sample_label": lab, "sample_track_id": np.arange(n_s),
-            "sample_source": src}
+            "approach_valid": np.array([[True, i != 0] for i in range(n_s)])}
 
 
 def test_rows_from_sweep_pairs_each_state_with_its_switch():
     data = _sweep_data()
+    lab0 = data["label"][2]
     r = when.rows_from_sweep(data, "gaps", GRID)
     assert r.now.sum() == 6 and (~r.now).sum() == 11  # one approach record was never reached
     np.testing.assert_array_equal(r.d_later[r.now], r.d_now[r.now])
     assert np.all(r.d_later[~r.now] < r.d_now[~r.now])
     # a wait row carries its switch's label and distance, and its own state
     np.testing.assert_allclose(r.d_now[6], data["approach_dist_m"][0, 0])
-    assert r.label[6] == data["sample_label"][0] and r.d_later[6] == data["sample_switch_dist_m"][0]
+    assert r.label[6] == lab0 and r.d_later[6] == data["switch_dist_m"][2]  # sample 0's offset 0
     np.testing.assert_allclose(r.x[6, 8:10], data["approach_phase"][0, 0])  # after 3+4+1 columns
     np.testing.assert_allclose(r.x[0, 8:10], data["phase"][2])  # the switch step: offset 0
     assert np.all(r.target == 1)

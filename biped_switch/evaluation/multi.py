@@ -5,8 +5,9 @@ Every method runs on the same `mixed` tracks (7 artifacts by default, no kind tw
 start), each trial starting with the walk policy; the switching methods differ only in when they
 switch (switching.py). The stand-init suite is used for every method but `estimator_no_overlap`
 and `learned_no_overlap` (RANDOM_INIT_METHODS), which use the random-init policies and their
-estimators or learned rule and start from random joints with no pause, as they were trained. The baselines (the DQN selector, the end-to-end policy) run the same
-tracks, seeds and horizon (`BaselineSetup`). Every env runs on the chosen physics backend, with the
+estimators or learned rule and start from random joints with no pause, as they were trained. The
+baselines (the DQN selector, the end-to-end policy) run the same tracks, seeds and horizon
+(`BaselineSetup`). Every env runs on the chosen physics backend, with the
 env overrides its policy suite was trained with. A row reports % distance, % success and % of
 trials failing on gaps / jumps / stairs, with 95% CIs (stats.py).
 """
@@ -35,6 +36,7 @@ from biped_switch.simulation import terrain
 from biped_switch.config import (MULTI_TRACK_SEED, SETUP_SUITE, SETUP_WALK_ON,
                                  default_switching_config, default_terrain_config,
                                  default_when_config)
+from biped_switch.paths import WHEN_DIR
 from biped_switch.simulation.rollout import over_devices
 from biped_switch.stats import episode_table, join_rows
 
@@ -74,8 +76,7 @@ def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
 
 
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
-                      stand_in: str | None = None, when_dir="models/switch_when"
-                      ) -> tuple[list, list]:
+                      stand_in: str | None = None, when_dir=WHEN_DIR) -> tuple[list, list]:
     """(methods whose trained parts exist, ["method: what is missing", ...])."""
     runs, ok, skipped = pathlib.Path(runs), [], []
     for m in methods:
@@ -358,8 +359,7 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
                    print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
                    n_artifacts: int = 7, backend: str = "auto",
                    per_trial: dict | None = None, track_seed: int = MULTI_TRACK_SEED,
-                   detector_dir=None, when_dir="models/switch_when",
-                   when_cfg=None) -> tuple[list, dict]:
+                   detector_dir=None, when_dir=WHEN_DIR, when_cfg=None) -> tuple[list, dict]:
     """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
     and per baseline ("dqn", "end_to_end"), every env on the physics `backend` with its policies'
     env overrides. `wall_s` of a row includes its setup and compiles. `per_trial`, if given, gets
@@ -377,7 +377,6 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
             merged = setups[method].evaluate(trials, seed, print_fn)
             sources = setups[method].sources
         else:
-            # the setup methods run a suite with the setup policies, in a rollout of their own
             # the setup methods run a suite with the setup policies, the learned rule its own
             # model: each in a rollout of its own
             learned = method in LEARNED_METHODS

@@ -233,9 +233,9 @@ def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, ba
     pick = np.sort(np.random.default_rng(seed).choice(pick, min(n, len(pick)), replace=False))
     g = sample_idx[pick]
     b_orig, i_orig = g // int(cfg.batch), g % int(cfg.batch)
-    keys = np.stack([np.asarray(episode_keys(jax.random.fold_in(
-        jax.random.PRNGKey(int(meta["seed"])), int(b)), int(cfg.batch))[0][int(i)])
-        for b, i in zip(b_orig, i_orig)])
+    batch_keys = {int(b): np.asarray(episode_keys(jax.random.fold_in(  # as run_sweep drew them
+        jax.random.PRNGKey(int(meta["seed"])), int(b)), int(cfg.batch))[0]) for b in set(b_orig)}
+    keys = np.stack([batch_keys[int(b)][int(i)] for b, i in zip(b_orig, i_orig)])
     runner = make_runner(env, suite.apply, meta["target"], cfg, target_index=track_tidx,
                          replay=True)
     labels, dists, t0 = [], [], time.perf_counter()
@@ -277,8 +277,9 @@ def _split(window: np.ndarray, lay):
 
 def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
     """A batch's valid samples as len(window) rows each (the estimator's fields and the phase
-    clock), and their count. Per sample, not per row: the `approach_*` records (K queries each:
-    state, heightmap, phase, distance [m], valid) and `sample_switch_dist_m` / `sample_label`."""
+    clock), and their count. Per sample, not per row (in the order of the samples' offset-0
+    rows, which carry the sample's label, source, track and switch distance): the `approach_*`
+    records (K queries each: state, heightmap, phase, distance [m], valid)."""
     v = np.asarray(out["valid"])
     state, hm, phase = _split(np.asarray(out["window"])[v], lay)
     a_state, a_hm, a_phase = _split(np.asarray(out["approach_obs"])[v], lay)
@@ -293,10 +294,6 @@ def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
             "approach_state": a_state, "approach_heightmap": a_hm, "approach_phase": a_phase,
             "approach_dist_m": np.asarray(out["approach_dist_m"])[v].astype(np.float32),
             "approach_valid": np.asarray(out["approach_valid"])[v],
-            "sample_switch_dist_m": np.asarray(out["switch_dist_m"])[v].astype(np.float32),
-            "sample_label": np.asarray(out["label"])[v].astype(np.int8),
-            "sample_track_id": np.asarray(out["track_id"])[v].astype(np.int32),
-            "sample_source": np.asarray(out["source"])[v].astype(np.int8),
             "label": rows(out["label"], np.int8),
             "sample": (first_sample + np.flatnonzero(v)[k]).astype(np.int32),
             "offset": np.tile(np.asarray(window, np.int8), n_s),

@@ -223,31 +223,32 @@ class Rows(NamedTuple):
 
 def rows_from_sweep(data: dict, target: str, grid: tuple[int, int]) -> Rows:
     """The rows of one target's context sweep (`sweep --context`, with approach records)."""
-    missing = [k for k in ("phase", "approach_state", "sample_label") if k not in data]
+    missing = [k for k in ("phase", "approach_state") if k not in data]
     if missing:
         raise ValueError(f"the {target} sweep has no {missing}: make it with this version's "
                          f"`python -m biped_switch.sweep --context --switch-min 0.2`")
     code = ARTIFACT_KINDS.index(target)
-    at0 = data["offset"] == 0
+    at0 = data["offset"] == 0  # one row per switch sample, in the approach records' order
+    sample = {k: data[k][at0] for k in ("source", "switch_dist_m", "label", "track_id")}
     n_now = int(at0.sum())
     feats = jax.jit(features, static_argnums=6)
     x_now = np.asarray(feats(np.full(n_now, code), data["source"][at0], data["switch_dist_m"][at0],
                              data["phase"][at0], data["state"][at0], data["heightmap"][at0], grid))
     valid = data["approach_valid"]
     s_idx, q_idx = np.nonzero(valid)
-    x_wait = np.asarray(feats(np.full(len(s_idx), code), data["sample_source"][s_idx],
+    x_wait = np.asarray(feats(np.full(len(s_idx), code), sample["source"][s_idx],
                               data["approach_dist_m"][s_idx, q_idx],
                               data["approach_phase"][s_idx, q_idx],
                               data["approach_state"][s_idx, q_idx],
                               data["approach_heightmap"][s_idx, q_idx], grid))
     d_now = np.concatenate([data["switch_dist_m"][at0], data["approach_dist_m"][s_idx, q_idx]])
-    d_later = np.concatenate([data["switch_dist_m"][at0], data["sample_switch_dist_m"][s_idx]])
+    d_later = np.concatenate([sample["switch_dist_m"], sample["switch_dist_m"][s_idx]])
     return Rows(np.concatenate([x_now, x_wait]).astype(np.float32), d_now.astype(np.float32),
                 d_later.astype(np.float32),
-                np.concatenate([data["label"][at0], data["sample_label"][s_idx]]).astype(np.float32),
-                np.concatenate([data["track_id"][at0], data["sample_track_id"][s_idx]]),
+                np.concatenate([sample["label"], sample["label"][s_idx]]).astype(np.float32),
+                np.concatenate([sample["track_id"], sample["track_id"][s_idx]]),
                 np.concatenate([np.ones(n_now, bool), np.zeros(len(s_idx), bool)]),
-                np.concatenate([data["source"][at0], data["sample_source"][s_idx]]).astype(np.int32),
+                np.concatenate([sample["source"], sample["source"][s_idx]]).astype(np.int32),
                 np.full(n_now + len(s_idx), code, np.int32))
 
 
@@ -395,11 +396,9 @@ def raw_logits(params, x, d_now, d_later, chunk: int = 8192) -> np.ndarray:
 
 
 def predict_rows(params, rows: Rows, chunk: int = 8192) -> np.ndarray:
-    """P(success) of each row's own (d_now, d_later)."""
-    f = jax.jit(lambda x, dn, dl: prob(params, x, dn, dl[:, None])[:, 0])
-    return np.concatenate([np.asarray(f(rows.x[i:i + chunk], rows.d_now[i:i + chunk],
-                                        rows.d_later[i:i + chunk]))
-                           for i in range(0, len(rows.x), chunk)])
+    """P(success) of each row's own (d_now, d_later): `raw_logits` through the temperature."""
+    z = raw_logits(params, rows.x, rows.d_now, rows.d_later, chunk) / float(params["temp"])
+    return 1.0 / (1.0 + np.exp(-z))
 
 
 # ----------------------------------------------------------------------- the offline check
