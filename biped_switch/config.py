@@ -280,6 +280,8 @@ def default_sweep_config() -> config_dict.ConfigDict:
         switch_max_m=0.9,  # switch at U(switch_min_m, switch_max_m) before the artifact (= detect
         switch_min_m=0.0,  # range); the paper's is U(0, 0.9) [m]; a raised floor puts the data
         # where the switching rules decide (0.3-0.9 m)
+        lead_jitter_m=0.2,  # lead-in sweeps: earlier hand-overs at the context lookup's
+        # distance minus U(0, this) [m], around where the learned rule switches
         approach_queries=2,  # per episode, observations recorded earlier on the approach, at
         # U(switch distance, switch_max_m) each: the states a "when" rule decides from
         steps_past=2,  # success: this many steps past the artifact's end, no fall (a step: a
@@ -345,6 +347,10 @@ def default_when_config() -> config_dict.ConfigDict:
         margin=0.0,
         margin_choices=(-0.02, 0.0, 0.02, 0.05),
         persist_steps=1,  # ... on this many control steps in a row (temporal smoothing)
+        ceiling_bin_m=0.05,  # the timing ceiling (`when --ceiling`): a sweep's best bin of this
+        ceiling_band_m=(0.2, 0.9),  # width [m] within this band [m], of at least ...
+        ceiling_min_n=50,  # ... this many switches; success per phase-clock sector (this many)
+        ceiling_phase_bins=8,  # of the lead-in sweep's switches within one bin of the best
     )
 
 

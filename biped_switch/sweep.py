@@ -43,6 +43,10 @@ def main(argv=None) -> int:
     p.add_argument("--context", action="store_true",
                    help="switch after the source policy has crossed its own artifact, as on mixed "
                         "tracks (two-artifact tracks; data and lookup named <init>_context)")
+    p.add_argument("--lead-in", action="store_true",
+                   help="a context sweep whose episodes all start with walk, the controller handing "
+                        "over along the track by the context lookup, as on Table II (up to three-"
+                        "artifact tracks; data and lookup named <init>_leadin)")
     p.add_argument("--switch-min", type=float, default=None,
                    help="switch at U(this, 0.9) m before the artifact (default 0: the paper's); "
                         "a floor puts the data where the rules decide")
@@ -52,7 +56,7 @@ def main(argv=None) -> int:
                         "the label agrees (RESULTS/label_noise.json)")
     p.add_argument("--replay-batch", type=int, default=128)
     a = p.parse_args(argv)
-    name = sweep_name(a.init, a.context)
+    name = sweep_name(a.init, a.context, a.lead_in)
     cfg = default_sweep_config()
     if a.points is not None:
         cfg.n_points = a.points
@@ -86,7 +90,8 @@ def main(argv=None) -> int:
               f"{jax.local_device_count()} {jax.devices()[0].platform} device(s)", flush=True)
         run = sweep_lib.run_sweep(a.init, target, cfg, out, a.runs, a.seed, a.tracks, a.stand_in,
                         a.guide_scale, print_fn=lambda *s: print(*s, flush=True),
-                        backend=a.backend, context=a.context)
+                        backend=a.backend, context=a.context, lead_in=a.lead_in,
+                        lookup_results=a.results)
         data[target] = load_data(run.path)
         stats[target] = {**sweep_lib.data_stats(data[target], run.path, run.wall_s_total),
                          "points_new": run.points_new, "session_s": round(run.session_s, 1),

@@ -6,7 +6,11 @@ Reads the context sweeps with approach records (`python -m biped_switch.sweep --
 --context --switch-min 0.2 --out runs/sweeps_when`), trains the ensemble, and scores it on the
 held-out tracks' switches at 0.3-0.9 m beside the paper's estimator and the (target, active
 policy, distance) table: AUC, Brier score and calibration error per target and source
-(experiments/results/when/offline.md). The model goes to <out>/<init>.
+(experiments/results/when/offline.md). The model goes to <out>/<init>. `--lead-in use|only`
+also reads the lead-in sweeps (`sweep --lead-in`).
+
+    python -m biped_switch.when --init stand --tune      # margin and run length, tuning tracks
+    python -m biped_switch.when --init stand --ceiling   # how far timing alone can go
 """
 
 from __future__ import annotations
@@ -33,6 +37,10 @@ def main(argv=None) -> int:
     p.add_argument("--init", default="stand", choices=("stand", "random"))
     p.add_argument("--data", default="runs/sweeps_when", help="the sweeps' --out")
     p.add_argument("--out", default="models/switch_when")
+    p.add_argument("--lead-in", choices=("use", "only", "skip"), default="skip",
+                   help="the lead-in sweeps (`sweep --lead-in`), where a target has one: train on "
+                        "them and the context sweep (use), in place of it (only), or not (skip: "
+                        "the committed model)")
     p.add_argument("--estimators", default="models/estimators",
                    help="the paper's estimators, scored beside it offline")
     p.add_argument("--results", default="experiments/results/when")
@@ -52,8 +60,18 @@ def main(argv=None) -> int:
     p.add_argument("--band", type=float, nargs="+", default=[],
                    help="band tolerances tried at the best margin (1: no band, always tried)")
     p.add_argument("--runs", default="runs")
+    p.add_argument("--ceiling", action="store_true",
+                   help="instead of training: the timing ceiling, each sweep's best switch-distance "
+                        "bin per (target, source) beside Table II's success there "
+                        "(RESULTS/ceiling.md)")
+    p.add_argument("--table2", default="experiments/results/table2",
+                   help="`evaluate failures`' output, read by --ceiling")
+    p.add_argument("--trials-ceiling", type=int, default=2500,
+                   help="Table II's tracks whose artifact sequences the ceiling is implied on")
     a = p.parse_args(argv)
     cfg = default_when_config()
+    if a.ceiling:
+        return _ceiling(a, cfg)
     if a.tune:
         if a.trials < 1 or min(a.persist) < 1:
             p.error(f"--trials and --persist must be >= 1, got {a.trials}, {a.persist}")
@@ -68,31 +86,21 @@ def main(argv=None) -> int:
     if cfg.epochs < 1 or cfg.ensemble < 1:
         p.error(f"--epochs and --ensemble must be >= 1, got {cfg.epochs}, {cfg.ensemble}")
     grid = layout(default_env_config()).grid
-    name = est_lib.sweep_name(a.init, True)
+    name, lead = est_lib.sweep_name(a.init, True), est_lib.sweep_name(a.init, True, True)
     t0 = time.perf_counter()
     rows, est_p, sweeps = [], [], {}
     for target in ARTIFACT_KINDS:
         path = pathlib.Path(a.data) / name / f"{target}.npz"
-        if not path.exists():
+        lead_path = pathlib.Path(a.data) / lead / f"{target}.npz"
+        paths = [path] + ([lead_path] if a.lead_in != "skip" and lead_path.exists() else [])
+        if a.lead_in == "only" and lead_path.exists():
+            paths = [lead_path]
+        if not paths[0].exists():
             raise FileNotFoundError(f"no sweep at {path}: python -m biped_switch.sweep --init "
                                     f"{a.init} --context --switch-min 0.2 --targets {target} "
                                     f"--out {a.data}")
-        data = est_lib.load_data(path)
-        r = when.rows_from_sweep(data, target, grid)
-        rows.append(r)
-        sweeps[target] = {"data": str(path), "samples": int((data["offset"] == 0).sum()),
-                          "wall_s": (data["meta"] or {}).get("wall_s_total"),
-                          "switch_min_m": data["meta"]["config"].get("switch_min_m")}
-        # the paper's estimator on the switch rows (the wait rows have no such prediction)
-        est_params, _ = est_lib.load_estimator(pathlib.Path(a.estimators) / f"{a.init}_{target}")
-        at0 = data["offset"] == 0
-        x = np.concatenate([data["state"][at0], data["heightmap"][at0].astype(np.float32)], -1)
-        f = jax.jit(lambda x: est_lib.predict(est_params, x))
-        pe = np.concatenate([np.asarray(f(jnp.asarray(x[i:i + 4096])))
-                             for i in range(0, len(x), 4096)])
-        est_p.append(np.concatenate([pe, np.full(len(r.label) - len(pe), np.nan)]))
-        print(f"{target}: {len(r.label):,} rows ({int(r.now.sum()):,} switches), "
-              f"{100 * r.label[r.now].mean():.1f}% success", flush=True)
+        for path in paths:
+            _read_sweep(path, target, grid, a, rows, est_p, sweeps)
     rows, est_p = when.concat_rows(rows), np.concatenate(est_p)
     data_s = time.perf_counter() - t0
     params, metrics = when.train(rows, cfg, print_fn=lambda *s: print(*s, flush=True))
@@ -102,7 +110,8 @@ def main(argv=None) -> int:
              "paper_estimator": est_p[val]}
     scores = when.offline_scores(preds, va)
     out = pathlib.Path(a.out) / a.init
-    meta = {"init": a.init, "config": cfg.to_dict(), "sweeps": sweeps, "grid": list(grid),
+    meta = {"init": a.init, "config": cfg.to_dict(), "sweeps": sweeps, "lead_in": a.lead_in,
+            "grid": list(grid),
             "parts": list(when.PARTS), "widths": when.part_widths(grid),
             **{k: v for k, v in metrics.items() if k != "history"},
             "data_s": round(data_s, 1), "device": str(jax.devices()[0])}
@@ -120,6 +129,117 @@ def main(argv=None) -> int:
     when_report.write(doc, res)
     print(f"saved {out}; offline check in {res}/offline.md "
           f"({time.perf_counter() - t0:.0f} s in all, training {metrics['train_s']:.0f} s)")
+    return 0
+
+
+def _read_sweep(path: pathlib.Path, target: str, grid, a, rows: list, est_p: list,
+                sweeps: dict) -> None:
+    """Appends one sweep's rows, and the paper's estimator's output on its switch rows (NaN on the
+    wait rows, which it has no prediction for), to `rows` and `est_p`; its record to `sweeps`."""
+    data = est_lib.load_data(path)
+    r = when.rows_from_sweep(data, target, grid)
+    rows.append(r)
+    sweeps[f"{path.parent.name}/{target}"] = {
+        "data": str(path), "samples": int((data["offset"] == 0).sum()),
+        "wall_s": (data["meta"] or {}).get("wall_s_total"),
+        "switch_min_m": data["meta"]["config"].get("switch_min_m")}
+    est_params, _ = est_lib.load_estimator(pathlib.Path(a.estimators) / f"{a.init}_{target}")
+    at0 = data["offset"] == 0
+    x = np.concatenate([data["state"][at0], data["heightmap"][at0].astype(np.float32)], -1)
+    f = jax.jit(lambda x: est_lib.predict(est_params, x))
+    pe = np.concatenate([np.asarray(f(jnp.asarray(x[i:i + 4096])))
+                         for i in range(0, len(x), 4096)])
+    est_p.append(np.concatenate([pe, np.full(len(r.label) - len(pe), np.nan)]))
+    print(f"{path.parent.name}/{target}: {len(r.label):,} rows ({int(r.now.sum()):,} switches), "
+          f"{100 * r.label[r.now].mean():.1f}% success", flush=True)
+
+
+def _ceiling(a, cfg) -> int:
+    """Per (target, source): the best switch-distance bin of the context and lead-in sweeps, and
+    what Table II's `learned` and `lookup_context` rows reached there (read, never tuned on)."""
+    from biped_switch.names import POLICY_NAMES
+    from biped_switch.stats import wilson_ci
+
+    sweeps = {"context sweep": est_lib.sweep_name(a.init, True),
+              "lead-in sweep": est_lib.sweep_name(a.init, True, True)}
+    methods = ("learned", "lookup_context") if a.init == "stand" else ("learned_no_overlap",)
+    t2_path = pathlib.Path(a.table2) / "failures_by_context.json"
+    t2 = json.loads(t2_path.read_text()) if t2_path.exists() else {}
+    data = {(s, t): np.load(pathlib.Path(a.data) / name / f"{t}.npz")
+            for s, name in sweeps.items() for t in ARTIFACT_KINDS
+            if (pathlib.Path(a.data) / name / f"{t}.npz").exists()}
+    rows, half_m, phase_bins = [], float(cfg.ceiling_bin_m), int(cfg.ceiling_phase_bins)
+    phase_sweep = "lead-in sweep"
+    for target in ARTIFACT_KINDS:
+        for j, src in enumerate(POLICY_NAMES):
+            if src == target:
+                continue
+            after = "start" if src == "walk" else src  # walk acts only before the 1st artifact
+            row = {"target": target, "source": after, "sweeps": {}, "table2": {}}
+            for s in sweeps:
+                d = data.get((s, target))
+                if d is None:
+                    continue
+                at0 = d["offset"] == 0
+                mine = d["source"][at0] == j
+                lost = (d["lost_switch_at_m"][d["lost_source"] == j] if "lost_source" in d.files
+                        else np.zeros(0))
+                b = when_report.best_bin(d["switch_dist_m"][at0][mine], d["label"][at0][mine],
+                                         lost, cfg.ceiling_bin_m, tuple(cfg.ceiling_band_m),
+                                         int(cfg.ceiling_min_n))
+                if b is not None:
+                    ci = wilson_ci(b[1], b[2])
+                    row["sweeps"][s] = {"bin_m": b[0], "k": b[1], "n": b[2],
+                                        "pct": 100 * b[1] / b[2], "ci": [100 * c for c in ci]}
+                if b is not None and s == phase_sweep:  # the phase clock around the best distance
+                    near = mine & (np.abs(d["switch_dist_m"][at0] - b[0] - cfg.ceiling_bin_m / 2)
+                                   <= cfg.ceiling_bin_m / 2 + half_m)
+                    ph = when_report.phase_spread(d["phase"][at0][near], d["label"][at0][near],
+                                                  phase_bins)
+                    if ph is not None:
+                        row["phase"] = {"min_pct": ph[0], "max_pct": ph[1], "min_n": ph[2],
+                                        "p": ph[3]}
+            for m in methods:
+                reached, fell = t2.get(m, {}).get(target, {}).get(after, (0, 0))
+                if reached:
+                    ci = wilson_ci(reached - fell, reached)
+                    row["table2"][m] = {"pct": 100 * (1 - fell / reached),
+                                        "ci": [100 * c for c in ci], "n": reached}
+            rows.append(row)
+    # what those rates imply for Table II's tracks, each artifact crossed independently; the
+    # same product of Table II's own per-pair rates checks how well independence holds
+    from biped_switch.config import MULTI_TRACK_SEED
+    from biped_switch.evaluation.multi import mixed_track
+
+    seqs = []
+    for i in range(a.trials_ceiling):
+        kinds = [ARTIFACT_KINDS[c] for c in mixed_track(MULTI_TRACK_SEED + i).artifact_codes]
+        seqs.append([(k, "start" if n == 0 else kinds[n - 1]) for n, k in enumerate(kinds)])
+
+    def implied(pick):
+        rate = {(r["target"], r["source"]): v for r in rows if (v := pick(r)) is not None}
+        v = when_report.implied_success(seqs, rate)
+        return None if v is None else round(100 * v, 1)
+
+    def best(r):  # the lead-in sweep's best bin where there is one, else the context sweep's
+        s = r["sweeps"].get("lead-in sweep") or r["sweeps"].get("context sweep")
+        return None if s is None else s["pct"] / 100
+
+    implied_pct = {"best bins": implied(best)}
+    for m in methods:
+        implied_pct[f"Table II {m}"] = implied(
+            lambda r: r["table2"][m]["pct"] / 100 if m in r["table2"] else None)
+    doc = {"init": a.init, "bin_m": float(cfg.ceiling_bin_m), "implied_pct": implied_pct,
+           "phase_sweep": phase_sweep, "phase_halfwidth_m": half_m, "phase_bins": phase_bins,
+           "tracks": a.trials_ceiling, "track_seed": MULTI_TRACK_SEED,
+           "band_m": list(cfg.ceiling_band_m), "min_n": int(cfg.ceiling_min_n),
+           "sweeps": [s for s in sweeps if any((s, t) in data for t in ARTIFACT_KINDS)],
+           "methods": list(methods), "rows": rows, "table2": str(t2_path)}
+    res = pathlib.Path(a.results)
+    res.mkdir(parents=True, exist_ok=True)
+    (res / "ceiling.json").write_text(json.dumps(doc, indent=1))
+    (res / "ceiling.md").write_text(when_report.ceiling_markdown(doc))
+    print(when_report.ceiling_markdown(doc))
     return 0
 
 

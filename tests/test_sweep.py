@@ -340,7 +340,7 @@ def fake_sweep(monkeypatch):
     def load_suite(init, env, runs, stand_in=None):
         return pol.PolicySuite(None, None, tuple(f"ckpt_{n}" for n in pol.POLICY_NAMES), overrides)
 
-    def make_runner(env, apply, target, cfg, guide_scale=0.0, target_index=None):
+    def make_runner(env, apply, target, cfg, guide_scale=0.0, target_index=None, lead_m=None):
         def run(params, rng, ids, src):
             ids = np.asarray(ids)
             calls.append(int(ids[0]) // batch)  # ids = sample index while n_tracks >= samples
@@ -353,7 +353,9 @@ def fake_sweep(monkeypatch):
                     "window": ids[:, None, None] + np.arange(5 * o).reshape(1, 5, o) / 1e3,
                     "switch_dist_m": (ids % 90) / 100 + 0.005, "track_id": ids,
                     "approach_obs": np.zeros((n, 2, o)), "approach_dist_m": np.ones((n, 2)),
-                    "approach_valid": np.ones((n, 2), bool)}
+                    "approach_valid": np.ones((n, 2), bool), "fell_before": ids % 3 == 0,
+                    "lead_dist_m": np.full(n, np.nan),
+                    "switch_at_m": np.full(n, 0.5)}
         return run
 
     monkeypatch.setattr(sweep, "time", type("T", (), {"perf_counter": clock.perf_counter}))
@@ -510,3 +512,56 @@ def test_main_keeps_the_table_of_a_target_whose_data_is_gone(fake_sweep, tmp_pat
                                 [0.0, 0.2, 0.1, 0.3]], [[2, 1, 1, 0], [0, 0, 0, 0], [1, 1, 1, 1],
                                                        [1, 1, 1, 1]], "jumps", 0.1)
     np.testing.assert_allclose(t["best_m"], [0.25, np.nan, 0.05, 0.35])
+
+
+def test_leadin_plan_by_hand():
+    """Sources cycle as in the context plan; an artifact source's track starts with nothing or
+    each other kind (in ARTIFACT_KINDS order: jumps, gaps, stairs) before its own artifact, and
+    the switch is before the target's (the last)."""
+    kinds, src, tidx = sweep.leadin_plan("gaps", 9)
+    names = [pol.POLICY_NAMES[j] for j in src]
+    assert names == ["walk", "jumps", "stairs"] * 3
+    assert kinds == [["gaps", "jumps"], ["jumps", "gaps"], ["stairs", "gaps"],
+                     ["gaps", "stairs"], ["gaps", "jumps", "gaps"], ["jumps", "stairs", "gaps"],
+                     ["gaps", "jumps"], ["stairs", "jumps", "gaps"], ["gaps", "stairs", "gaps"]]
+    assert tidx.tolist() == [0, 1, 1, 0, 2, 2, 0, 2, 2]
+    for k, t in zip(kinds, tidx):
+        assert k[t] == "gaps" and all(a != b for a, b in zip(k, k[1:]))  # no kind twice in a row
+
+
+def test_leadin_hands_over_at_the_table_distance(env):
+    """Walk leads in on every episode: before an earlier artifact it hands over to that
+    artifact's policy at lead_m[walk, kind] (within one control step's travel), and with the
+    target's artifact first there is no lead-in; the switch then leaves walk."""
+    def apply(p, obs):
+        return jnp.zeros((obs.shape[0], 12)) * p
+
+    lead_m = np.full((len(pol.POLICY_NAMES), 3), 0.5, np.float32)
+    src = jnp.asarray([1, 2, 3, 1], jnp.int32)  # what the lead-in should leave acting
+    run = jax.jit(lambda tidx: sweep.sweep_rollout(
+        env, apply, jnp.arange(4, dtype=jnp.float32), jax.random.PRNGKey(3),
+        jnp.asarray(TRACK_IDS), src, pol.POLICY_INDEX["gaps"], switch_max_m=0.9, steps_past=2,
+        horizon=300, guide_scale=1.0, end_offset_m=END_OFFSET_M, target_index=tidx,
+        lead_m=jnp.asarray(lead_m)))
+    first = jax.device_get(run(jnp.zeros(B, jnp.int32)))
+    assert np.isnan(first["lead_dist_m"]).all()
+    switched = ~np.isnan(first["switch_dist_m"])
+    assert switched.any()
+    assert (first["switch_left"][switched] == pol.POLICY_INDEX["walk"]).all()
+    assert (first["switch_left"][~switched] == -1).all()
+    second = jax.device_get(run(jnp.ones(B, jnp.int32)))
+    led = ~np.isnan(second["lead_dist_m"])
+    assert led.any()  # the guided robot comes within 0.5 m of its 1st artifact
+    assert (second["lead_dist_m"][led] <= 0.5).all() and (second["lead_dist_m"][led] > 0.4).all()
+
+
+def test_resume_key_of_a_leadin_sweep_survives_its_json_and_older_sweeps_keep_theirs():
+    cfg = sweep_cli.default_sweep_config()
+    meta = {"policies": {"walk": "a"}, "seed": 0, "config": cfg.to_dict(), "guide_scale": 0.0,
+            "n_tracks": 4, "track_seed": 20000, "context": True, "lead_in": True,
+            "lead_m": [[None, 0.89, 0.8], [0.3, None, 0.4]]}  # NaN pairs as None: JSON-equal
+    assert sweep.resume_key(json.loads(json.dumps(meta))) == sweep.resume_key(meta)
+    old = {k: v for k, v in meta.items() if k not in ("lead_in", "lead_m")}
+    old["config"] = {k: v for k, v in old["config"].items() if k != "lead_jitter_m"}
+    new = {**old, "config": cfg.to_dict(), "lead_in": False, "lead_m": None}
+    assert sweep.resume_key(old) == sweep.resume_key(new)  # a context sweep made before lead-ins

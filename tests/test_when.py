@@ -109,6 +109,29 @@ def test_rows_from_sweep_pairs_each_state_with_its_switch():
         when.rows_from_sweep(bad, "gaps", GRID)
 
 
+def test_rows_from_sweep_counts_a_fall_while_waiting_as_a_failed_wait():
+    """An episode that fell before its switch gives no switch row, but each approach record it
+    reached is a wait that failed: label 0, switching at the intended distance."""
+    data = _sweep_data()
+    base = when.rows_from_sweep(data, "gaps", GRID)
+    rng = np.random.default_rng(1)
+    lost = {"lost_approach_state": rng.normal(size=(2, 2, STATE_SIZE)).astype(np.float32),
+            "lost_approach_heightmap": rng.uniform(size=(2, 2, 2400)).astype(np.float16),
+            "lost_approach_phase": rng.normal(size=(2, 2, 2)).astype(np.float32),
+            "lost_approach_dist_m": np.array([[0.8, 0.7], [0.6, 0.5]], np.float32),
+            "lost_approach_valid": np.array([[True, True], [False, True]]),
+            "lost_source": np.array([1, 3], np.int8), "lost_track_id": np.array([7, 9], np.int32),
+            "lost_switch_at_m": np.array([0.35, 0.4], np.float32)}
+    r = when.rows_from_sweep({**data, **lost}, "gaps", GRID)
+    n = len(base.label)
+    assert len(r.label) == n + 3 and not r.now[n:].any() and (r.label[n:] == 0).all()
+    np.testing.assert_allclose(r.d_now[n:], [0.8, 0.7, 0.5])
+    np.testing.assert_allclose(r.d_later[n:], [0.35, 0.35, 0.4])
+    assert r.source[n:].tolist() == [1, 1, 3] and r.track[n:].tolist() == [7, 7, 9]
+    np.testing.assert_allclose(r.x[n + 2, 8:10], lost["lost_approach_phase"][1, 1])
+    np.testing.assert_array_equal(r.x[:n], base.x)  # the rows before are unchanged
+
+
 def test_table_predict_by_hand():
     def rows(target, source, d, y, now=True):
         n = len(d)
@@ -292,3 +315,36 @@ def test_band_waits_before_it_picks_inside_it_and_fires_at_its_end():
     assert band.max() - 0.011 <= high <= band.max() + 0.011 + 0.025  # enters the band: fires
     low = first_fire(np.full(len(path), 0.01))
     assert band.min() - 0.011 <= low <= band.min() + 0.02 + 0.011  # the band's last moment
+
+
+def test_best_bin_counts_falls_before_the_switch_against_their_bin():
+    from biped_switch.reports import when as when_report
+
+    dist = np.array([0.21, 0.22, 0.23, 0.31, 0.32, 0.33, 0.34])
+    label = np.array([1, 1, 0, 1, 1, 1, 1])
+    # bin 0.2-0.25: 2 of 3; bin 0.3-0.35: 4 of 4, but two falls before a switch meant there: 4 of 6
+    assert when_report.best_bin(dist, label, np.zeros(0), 0.05, (0.2, 0.4), 3) == (0.3, 4, 4)
+    assert when_report.best_bin(dist, label, np.array([0.31, 0.33]), 0.05, (0.2, 0.4), 3) == (
+        0.2, 2, 3)
+    assert when_report.best_bin(dist, label, np.zeros(0), 0.05, (0.2, 0.4), 5) is None
+
+
+def test_implied_success_by_hand():
+    from biped_switch.reports import when as when_report
+
+    rate = {("gaps", "start"): 0.9, ("jumps", "gaps"): 0.5, ("gaps", "jumps"): 0.8}
+    seqs = [[("gaps", "start"), ("jumps", "gaps")], [("gaps", "start"), ("jumps", "gaps"),
+                                                    ("gaps", "jumps")]]
+    assert when_report.implied_success(seqs, rate) == pytest.approx((0.45 + 0.36) / 2)
+    assert when_report.implied_success([[("stairs", "start")]], rate) is None
+
+
+def test_phase_spread_by_hand():
+    from biped_switch.reports import when as when_report
+
+    ang = np.array([-3.0, -2.9, -1.0, -0.9, 0.5, 0.6, 2.0, 2.1])  # two switches per quarter
+    phase = np.stack([np.sin(ang), np.cos(ang)], 1)
+    lo, hi, n_min, p = when_report.phase_spread(phase, np.array([1, 1, 1, 0, 0, 0, 1, 1]), 4)
+    assert (lo, hi, n_min) == (0.0, 100.0, 2) and 0 < p < 1
+    assert when_report.phase_spread(phase, np.ones(8), 4)[3] == 1.0  # no failure: nothing to test
+    assert when_report.phase_spread(phase[:2], np.ones(2), 4) is None  # empty sectors

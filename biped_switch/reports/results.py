@@ -178,6 +178,20 @@ Margin and run length, chosen on tuning tracks (seeds {{when_tune_seeds}}), from
 
 {{include when/tuning.md}}
 
+How far timing alone can go, from `experiments/results/when/ceiling.md` (`python -m
+biped_switch.when --init stand --ceiling`): each sweep's best switch-distance bin per pair, beside
+what Table II's rows reached there. The lead-in sweep (`sweep --lead-in`) hands over along the
+track as the controller does:
+
+{{include when/ceiling.md}}
+
+![the lead-in sweep: success against switch distance](../experiments/results/lookup/fig4b_stand_leadin.png)
+
+The rule trained on the lead-in sweeps as well (`when --lead-in use`), against the committed
+one, on the same tracks:
+
+{{lead_in_check}}
+
 ## Setup policies (ours)
 
 From `experiments/results/setup/setup.md` (`python -m biped_switch.switching.setup eval --full-tracks
@@ -319,6 +333,9 @@ def values(results: pathlib.Path) -> dict:
         "demo_artifacts": WORDS.get(demo["n_artifacts"], str(demo["n_artifacts"])),
         "demo_horizon": f"{demo['horizon_s']:g}",
         "label_noise": label_noise_md(results / "when/label_noise.json"),
+        "lead_in_check": paired_md(results / "when", "tune1000_committed", {
+            "tune1000_use": "context + lead-in sweeps", "tune1000_use_gaps":
+            "context sweeps + the gaps lead-in sweep"}),
         "when_tune_seeds": _seeds(tune["track_seed"], tune["trials"]),
     }
 
@@ -334,6 +351,34 @@ def label_noise_md(path: pathlib.Path) -> str:
                      f"**{r['agree_pct']:.1f}%** | {r['flips_1_to_0']} / {r['flips_0_to_1']} | "
                      f"{r['success_pct_recorded']:.1f}% / {r['success_pct_replayed']:.1f}% | "
                      f"{r['sweep_batch']} / {r['batch']} |")
+    return "\n".join(lines)
+
+
+def paired_md(results: pathlib.Path, base: str, others: dict) -> str:
+    """Rows of `evaluate multi` runs of the learned rule on the same tracks, each against `base`
+    (folder names under `results`): success, and the trials only one of the two won."""
+    import numpy as np
+
+    def load(name):
+        doc = _json(results / name / "table2.json")
+        won = np.load(results / name / "table2_trials.npz")["learned/success"] > 0.5
+        return _row(doc, "learned"), won, doc
+
+    b_row, b_won, b_doc = load(base)
+    s = b_doc["settings"]
+    lines = [f"{s['trials']:,} tuning tracks (seeds {_seeds(s['track_seed'], s['trials'])}), "
+             f"`evaluate multi --methods learned --track-seed {s['track_seed']} --trials "
+             f"{s['trials']} [--when-dir DIR]` ({b_doc['device']}):", "",
+             "| run (experiments/results/when/) | rule trained on | % success (95% CI) | trials "
+             "won only by it / only by the committed model |", "|---|---|---|---|",
+             f"| {base} | context sweeps (the committed {s['when_dir']}) | "
+             f"{b_row['success_pct']:.1f} ({b_row['success_ci'][0]:.1f}-"
+             f"{b_row['success_ci'][1]:.1f}) | - |"]
+    for name, what in others.items():
+        row, won, doc = load(name)
+        lines.append(f"| {name} | {what} | {row['success_pct']:.1f} "
+                     f"({row['success_ci'][0]:.1f}-{row['success_ci'][1]:.1f}) | "
+                     f"{int((won & ~b_won).sum())} / {int((b_won & ~won).sum())} |")
     return "\n".join(lines)
 
 

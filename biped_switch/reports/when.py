@@ -81,3 +81,92 @@ def write(doc: dict, out_dir) -> None:
     out_dir = pathlib.Path(out_dir)
     (out_dir / "offline.md").write_text(markdown(doc))
     plot_reliability(doc, out_dir / "reliability.png")
+
+
+# ----------------------------------------------------------------------- the timing ceiling
+def best_bin(dist_m, label, lost_m, bin_m: float = 0.05, band=(0.2, 0.9), min_n: int = 50):
+    """The switch-distance bin [m] of width `bin_m` in `band` whose switches succeed most often:
+    (bin start [m], successes, trials), or None when no bin has `min_n` trials. `lost_m`: the
+    intended switch distances of episodes that fell before reaching them, each a failure in its
+    bin. The max over bins is picked after the fact, so it flatters: a generous ceiling for any
+    rule that chooses only the distance."""
+    edges = np.arange(band[0], band[1] + 1e-9, bin_m)
+    best = None
+    for lo in edges[:-1]:
+        m = (dist_m >= lo) & (dist_m < lo + bin_m)
+        k = int(np.asarray(label)[m].sum())
+        n = int(m.sum() + ((lost_m >= lo) & (lost_m < lo + bin_m)).sum())
+        if n >= min_n and (best is None or k / n > best[1] / best[2]):
+            best = (round(float(lo), 3), k, n)
+    return best
+
+
+def phase_spread(phase, label, bins: int = 8) -> tuple[float, float, int, float] | None:
+    """Success per phase-clock sector ((sin, cos) -> angle, `bins` equal sectors): (lowest %,
+    highest %, fewest switches in a sector, chi-square p of "success does not depend on the
+    sector"); None without switches in every sector. If the clock at the switch mattered, a rule
+    could wait for a good sector."""
+    from scipy.stats import chi2_contingency
+
+    phase, label = np.asarray(phase), np.asarray(label)
+    sector = ((np.arctan2(phase[:, 0], phase[:, 1]) + np.pi) / (2 * np.pi) * bins).astype(int)
+    sector = np.minimum(sector, bins - 1)
+    n = np.bincount(sector, minlength=bins)
+    if len(label) == 0 or (n == 0).any():
+        return None
+    k = np.bincount(sector, weights=label, minlength=bins)
+    pct = 100 * k / n
+    table = np.stack([k, n - k])
+    p = 1.0 if (table.sum(1) == 0).any() else float(chi2_contingency(table)[1])
+    return float(pct.min()), float(pct.max()), int(n.min()), p
+
+
+def ceiling_markdown(doc: dict) -> str:
+    lines = [f"Success of switching into each target after each source: the best "
+             f"{doc['bin_m'] * 100:.0f} cm bin of switch distance in {doc['band_m'][0]:g}-"
+             f"{doc['band_m'][1]:g} m of each sweep (at least {doc['min_n']} switches; a fall "
+             f"before the switch counts against its bin), against Table II's tracks (`evaluate "
+             f"failures`: 1 - falls / artifacts reached). No rule that only chooses the distance "
+             f"can beat its sweep's best bin by more than chance; the lead-in sweep starts each "
+             f"episode with walk and hands over along the track as the controller does.", "",
+             "| target | after | " + " | ".join(f"{s}: best bin [m], % (95% CI)"
+                                                for s in doc["sweeps"])
+             + " | " + " | ".join(f"Table II {m}: %" for m in doc["methods"])
+             + f" | {doc['phase_sweep']}, best bin +-{doc['phase_halfwidth_m'] * 100:.0f} cm: % "
+               f"over {doc['phase_bins']} phase sectors (chi-square p: the same in all) |",
+             "|---|---|" + "---|" * (len(doc["sweeps"]) + len(doc["methods"]) + 1)]
+    for r in doc["rows"]:
+        cells = []
+        for s in doc["sweeps"]:
+            b = r["sweeps"].get(s)
+            cells.append("-" if b is None else
+                         f"{b['bin_m']:.2f}: {b['pct']:.1f} ({b['ci'][0]:.1f}-{b['ci'][1]:.1f}), "
+                         f"n {b['n']:,}")
+        for m in doc["methods"]:
+            t = r["table2"].get(m)
+            cells.append("-" if t is None else f"{t['pct']:.1f} ({t['ci'][0]:.1f}-{t['ci'][1]:.1f})")
+        ph = r.get("phase")
+        cells.append("-" if ph is None else f"{ph['min_pct']:.0f}-{ph['max_pct']:.0f} "
+                     f"(n >= {ph['min_n']}; p {ph['p']:.2f})")
+        lines.append(f"| {r['target']} | {r['source']} | " + " | ".join(cells) + " |")
+    imp = doc.get("implied_pct", {})
+    if imp:
+        lines += ["", f"Implied success on Table II's {doc['tracks']:,} tracks (seeds "
+                  f"{doc['track_seed']:,}+), each artifact crossed independently at its pair's "
+                  f"rate: " + "; ".join(f"{k} {'-' if v is None else f'{v:.1f}%'}"
+                                        for k, v in imp.items())
+                  + ". The product of Table II's own pair rates, beside the row's measured success,"
+                  " shows how far independence holds."]
+    return "\n".join(lines) + "\n"
+
+
+def implied_success(sequences, rate: dict) -> float | None:
+    """Track success if every artifact is crossed independently at `rate[(target, after)]`: the
+    mean over tracks (each a list of (kind, the kind before it or "start")) of the product of
+    its rates; None if a pair has no rate."""
+    out = []
+    for seq in sequences:
+        if any(pair not in rate for pair in seq):
+            return None
+        out.append(float(np.prod([rate[pair] for pair in seq])))
+    return float(np.mean(out)) if out else None

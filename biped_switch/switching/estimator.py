@@ -350,10 +350,11 @@ def load_estimator(path) -> tuple[dict, dict]:
     return jax.tree.map(np.asarray, params), runs_lib.read_json(path / "meta.json")
 
 
-def sweep_name(init: str, context: bool = False) -> str:
+def sweep_name(init: str, context: bool = False, lead_in: bool = False) -> str:
     """The folder and file stem of a sweep's data, and of the estimators and lookup made from it:
-    `<init>`, or `<init>_context` for a context sweep (`sweep --context`)."""
-    return f"{init}_context" if context else init
+    `<init>`, `<init>_context` for a context sweep (`sweep --context`), `<init>_leadin` for a
+    lead-in sweep (`sweep --lead-in`)."""
+    return f"{init}_leadin" if lead_in else f"{init}_context" if context else init
 
 
 def load_estimator_set(init: str, model_dir="models/estimators", targets: Sequence[str] = TARGETS

@@ -27,6 +27,12 @@ one, of kind i (two-artifact tracks [j, i]); walk, which only ever acts before t
 switches before an [i, other] track's first. The paper's sweep starts every source on flat ground,
 so its data never hold the states just after an artifact, where Table II's switches happen. Data,
 lookup table and figure are named `<init>_context`.
+
+    python -m biped_switch.sweep --init stand --lead-in --switch-min 0.2 [--targets gaps]
+
+A *lead-in* sweep (ours) goes one step further: every episode starts with walk, and the earlier
+hand-overs follow the context lookup table, as on Table II's tracks (`sweep_tracks.leadin_plan`);
+named `<init>_leadin`. The tracks and plans are in `sweep_tracks.py`.
 """
 
 from __future__ import annotations
@@ -44,12 +50,14 @@ import numpy as np
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.simulation import terrain
-from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_terrain_config
+from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_switching_config
 from biped_switch.switching.estimator import sweep_name
 from biped_switch.simulation.observation import layout
 from biped_switch.simulation.rollout import episode_keys, over_devices, reset_by_track, run_episodes
 from biped_switch.switching.labels import (label_step, labelling_init, window_fill, window_init,
                                            window_update)
+from biped_switch.switching.sweep_tracks import (context_plan, leadin_plan, make_context_env,
+                                                 make_env)
 
 
 # ----------------------------------------------------------------------- the rollout
@@ -57,7 +65,8 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
                   steps_past: int, horizon: int, chunk: int = 50, guide_scale=0.0,
                   end_offset_m: float = 0.0, target_index=None, window=None,
                   switch_min_m: float = 0.0, approach_queries: int = 0, switch_at_m=None,
-                  reset_keys=None) -> dict:
+                  reset_keys=None, lead_m=None, lead_jitter_m: float = 0.0,
+                  force_m: float = 0.01) -> dict:
     """A batch of switch episodes (one env per track id), switching before artifact
     `target_index` (B,) of each track (default 0: the first; context sweeps switch before the 2nd).
 
@@ -72,7 +81,13 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     `approach_queries` K > 0 also records, per episode, the
     observation at the first step within each of K distances U(switch distance, switch_max_m)
     of the target (before or at the switch: the source policy still acts), and the distance
-    there: what a rule deciding *when* to switch sees earlier on the same approach."""
+    there: what a rule deciding *when* to switch sees earlier on the same approach.
+
+    `lead_m` (P, N_TARGETS) [m] (a lead-in sweep): walk starts every episode, and before each
+    artifact ahead of the target's the active policy hands over to that artifact's at
+    lead_m[active, kind] - U(0, `lead_jitter_m`) (one draw per episode; at `force_m` at the
+    latest), as the switching controller does along a track; `sources` then names the policy
+    the lead-in leaves acting before the target."""
     n = track_ids.shape[0]
     keys, k_u = episode_keys(rng, n)
     reset_keys = keys if reset_keys is None else reset_keys
@@ -86,12 +101,15 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
         switch_max_m - switch_at[:, None])
     tidx = (jnp.zeros(n, jnp.int32) if target_index is None
             else jnp.asarray(target_index, jnp.int32))
-    carry = {"active": sources.astype(jnp.int32), "switched": jnp.zeros(n, bool),
+    lead_u = jax.random.uniform(jax.random.fold_in(k_u, 2), (n,)) * lead_jitter_m
+    start = sources if lead_m is None else jnp.full(n, pol.POLICY_INDEX["walk"])
+    carry = {"active": start.astype(jnp.int32), "switched": jnp.zeros(n, bool),
              "dist_m": jnp.full(n, jnp.nan), "lab": labelling_init((n,)),
              "win": jax.vmap(lambda o: window_init(o, window))(state.obs),
              "q_obs": jnp.zeros((n, approach_queries) + state.obs.shape[1:], state.obs.dtype),
              "q_dist_m": jnp.full((n, approach_queries), jnp.nan),
-             "q_done": jnp.zeros((n, approach_queries), bool)}
+             "q_done": jnp.zeros((n, approach_queries), bool),
+             "lead_dist_m": jnp.full(n, jnp.nan), "left": jnp.full(n, -1, jnp.int32)}
     label_steps = jax.vmap(functools.partial(label_step, steps_past=steps_past))
 
     def act(c, state, live, _):
@@ -99,15 +117,26 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
         det = si["detect"]
         near = live & ~c["switched"] & (det["kind"] >= 0) & (det["index"] == tidx)
         now = near & (det["dist_m"] <= switch_at)
-        active = jnp.where(now, target, c["active"])
+        active = c["active"]
+        if lead_m is not None:  # the lead-in: hand over into each earlier artifact's policy
+            code = jnp.maximum(det["kind"], 0)
+            at_m = jnp.nan_to_num(lead_m[active, code], nan=force_m) - lead_u
+            lead = (live & (det["kind"] >= 0) & (det["index"] < tidx) & (code + 1 != active)
+                    & (det["dist_m"] <= jnp.maximum(at_m, force_m)))
+            active = jnp.where(lead, code + 1, active)  # POLICY_INDEX = artifact code + 1
+            c = {**c, "lead_dist_m": jnp.where(lead, det["dist_m"], c["lead_dist_m"])}
+        left = jnp.where(now, active, c["left"])  # the policy the switch leaves
+        active = jnp.where(now, target, active)
         win = jax.vmap(window_update)(c["win"], state.obs, now, c["switched"] & live)
         q_hit = near[:, None] & ~c["q_done"] & (det["dist_m"][:, None] <= q_at)
         q_obs = jnp.where(q_hit[..., None], state.obs[:, None], c["q_obs"])
         q_dist = jnp.where(q_hit, det["dist_m"][:, None], c["q_dist_m"])
         action = pol.select(pol.all_actions(apply, params, state.obs), active)
-        return action, {**c, "active": active, "switched": c["switched"] | now, "win": win,
-                        "dist_m": jnp.where(now, det["dist_m"], c["dist_m"]), "q_obs": q_obs,
-                        "q_dist_m": q_dist, "q_done": c["q_done"] | q_hit}, (si, c["switched"])
+        before = c["switched"]
+        c = {**c, "active": active, "switched": before | now, "win": win, "left": left,
+             "dist_m": jnp.where(now, det["dist_m"], c["dist_m"]), "q_obs": q_obs,
+             "q_dist_m": q_dist, "q_done": c["q_done"] | q_hit}
+        return action, c, (si, before)
 
     def record(c, aux, state, nxt, live):
         si, switched_before = aux
@@ -132,53 +161,17 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
             "switch_dist_m": c["dist_m"], "switch_at_m": switch_at, "source": sources,
             "track_id": track_ids, "fell": lab.fell, "steps": ep.length.astype(jnp.int32),
             "steps_past": lab.steps, "approach_obs": c["q_obs"], "approach_dist_m": c["q_dist_m"],
-            "approach_valid": c["q_done"], "approach_at_m": q_at}
-
-
-def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
-    """Single-artifact `target` tracks SWEEP_TRACK_SEED + i; `overrides` (env config: the physics
-    `backend`, the suite's action mode and phase clock) go to `env.make_env`."""
-    return env_lib.make_env(target, init, n_artifacts=1, n_tracks=n_tracks,
-                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
-
-
-def context_plan(target: str, n_tracks: int) -> tuple[list[list[str]], np.ndarray, np.ndarray]:
-    """(artifact kinds, source policy, target artifact index) per track of a context sweep.
-
-    Track i's source cycles over the other policies. On a `mixed` track an artifact policy hands
-    over after crossing its own artifact, and walk only before the first: so an artifact source
-    gets [its kind, target] and switches before the 2nd artifact; walk gets [target, another kind]
-    and switches before the 1st (the plain sweep's situation)."""
-    others = [j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]]
-    kinds, src, tidx = [], [], []
-    for i in range(n_tracks):
-        j = others[i % len(others)]
-        name = pol.POLICY_NAMES[j]
-        if name == "walk":
-            after = [k for k in terrain.ARTIFACT_KINDS if k != target]
-            kinds.append([target, after[(i // len(others)) % len(after)]])
-            tidx.append(0)
-        else:
-            kinds.append([name, target])
-            tidx.append(1)
-        src.append(j)
-    return kinds, np.asarray(src, np.int32), np.asarray(tidx, np.int32)
-
-
-def make_context_env(kinds, init: str, difficulty: float = 1.0, **overrides):
-    """Two-artifact tracks SWEEP_TRACK_SEED + i of the kinds `kinds[i]` (`context_plan`'s)."""
-    tcfg = default_terrain_config(2)
-    tracks = [terrain.sequence_track(SWEEP_TRACK_SEED + i, k, 1.0, tcfg)
-              for i, k in enumerate(kinds)]
-    return env_lib.make_env("mixed", init, terrain_cfg=tcfg, tracks=tracks, n_tracks=len(tracks),
-                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
+            "approach_valid": c["q_done"], "approach_at_m": q_at, "switch_left": c["left"],
+            "fell_before": lab.fell_before,
+            "lead_dist_m": c["lead_dist_m"]}
 
 
 def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_index=None,
-                replay: bool = False):
+                replay: bool = False, lead_m=None):
     """(params, rng, track_ids, sources) -> batch results, split over all local devices;
-    `target_index` (n_tracks,) the artifact switched before on each track (default: the first).
-    With `replay`: (params, rng, track_ids, sources, switch_at_m, reset_keys)."""
+    `target_index` (n_tracks,) the artifact switched before on each track (default: the first);
+    `lead_m` the lead-in's switch table (a lead-in sweep). With `replay`: (params, rng,
+    track_ids, sources, switch_at_m, reset_keys)."""
     horizon = int(round(cfg.horizon_s / env.dt))
     tgt = pol.POLICY_INDEX[target]
     tidx_of = None if target_index is None else jnp.asarray(target_index, jnp.int32)
@@ -189,23 +182,35 @@ def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_i
                              target_index=None if tidx_of is None else tidx_of[ids],
                              window=tuple(cfg.window), switch_min_m=cfg.switch_min_m,
                              approach_queries=0 if replay else int(cfg.approach_queries),
-                             switch_at_m=switch_at_m, reset_keys=reset_keys)
+                             switch_at_m=switch_at_m, reset_keys=reset_keys,
+                             lead_m=None if lead_m is None else jnp.asarray(lead_m, jnp.float32),
+                             lead_jitter_m=float(cfg.lead_jitter_m),
+                             force_m=float(default_switching_config().force_switch_m))
 
     return over_devices(one, n_shared=1)
 
 
 def sweep_env(init: str, target: str, cfg, runs, n_tracks: int, stand_in=None,
-              backend: str = "auto", context: bool = False):
+              backend: str = "auto", context: bool = False, lead_in: bool = False):
     """(env, policy suite, source per track, target artifact index per track) of a sweep; the
-    last two are None for the paper's sweep (sources cycle, the first artifact)."""
+    last two are None for the paper's sweep (sources cycle, the first artifact). A `lead_in`
+    sweep (a kind of context sweep) lays out `leadin_plan`'s tracks."""
     overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in)
-    if context:
-        kinds, track_src, track_tidx = context_plan(target, n_tracks)
+    if context or lead_in:
+        plan = leadin_plan if lead_in else context_plan
+        kinds, track_src, track_tidx = plan(target, n_tracks)
         env = make_context_env(kinds, init, cfg.difficulty, backend=backend, **overrides)
     else:
         track_src = track_tidx = None
         env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
     return env, pol.load_suite(init, env, runs, stand_in=stand_in), track_src, track_tidx
+
+
+def lead_table(init: str, results="experiments/results/lookup") -> np.ndarray:
+    """The lead-in's hand-over distances: the context lookup table (P, N_TARGETS) [m]."""
+    from biped_switch.switching.lookup import load_context_lookup
+
+    return load_context_lookup(init, results)[0]
 
 
 def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, backend="auto",
@@ -223,9 +228,10 @@ def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, ba
     if batch == int(cfg.batch):
         raise ValueError(f"replay batch {batch} equals the sweep's: choose another, so that the "
                          f"program differs")
+    lead_in = bool(meta.get("lead_in"))
     env, suite, track_src, track_tidx = sweep_env(
         meta["init"], meta["target"], cfg, runs, int(meta["n_tracks"]), stand_in, backend,
-        bool(meta.get("context")))
+        bool(meta.get("context")), lead_in)
     sample_idx = np.unique(data["sample"])  # global episode index: batch b * sweep batch + i
     first = np.searchsorted(data["sample"], sample_idx)
     dist = data["switch_dist_m"][first]
@@ -237,7 +243,8 @@ def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, ba
         jax.random.PRNGKey(int(meta["seed"])), int(b)), int(cfg.batch))[0]) for b in set(b_orig)}
     keys = np.stack([batch_keys[int(b)][int(i)] for b, i in zip(b_orig, i_orig)])
     runner = make_runner(env, suite.apply, meta["target"], cfg, target_index=track_tidx,
-                         replay=True)
+                         replay=True,
+                         lead_m=np.asarray(meta["lead_m"], float) if lead_in else None)
     labels, dists, t0 = [], [], time.perf_counter()
     for s in range(0, len(g), batch):
         idx = np.arange(s, s + batch) % len(g)  # the last batch wraps; its extra rows are dropped
@@ -279,7 +286,13 @@ def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
     """A batch's valid samples as len(window) rows each (the estimator's fields and the phase
     clock), and their count. Per sample, not per row (in the order of the samples' offset-0
     rows, which carry the sample's label, source, track and switch distance): the `approach_*`
-    records (K queries each: state, heightmap, phase, distance [m], valid)."""
+    records (K queries each: state, heightmap, phase, distance [m], valid) and `lead_dist_m`,
+    where the lead-in last handed over (NaN: no lead-in).
+
+    An episode that fell before its switch has no sample, but its approach records still say
+    something true: waiting from there for the switch distance (`lost_switch_at_m`) failed.
+    Without them a "when" rule would count only the waits that survived, and wait too long. They
+    are kept as `lost_*` (approach records, source, track, the intended switch distance)."""
     v = np.asarray(out["valid"])
     state, hm, phase = _split(np.asarray(out["window"])[v], lay)
     a_state, a_hm, a_phase = _split(np.asarray(out["approach_obs"])[v], lay)
@@ -289,11 +302,22 @@ def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
     def rows(x, dtype):
         return np.repeat(np.asarray(x)[v], n_w).astype(dtype)
 
-    return {"state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
+    lost = np.asarray(out["fell_before"]) & np.asarray(out["approach_valid"]).any(-1)
+    l_state, l_hm, l_phase = _split(np.asarray(out["approach_obs"])[lost], lay)
+    lost_part = {"lost_approach_state": l_state, "lost_approach_heightmap": l_hm,
+                 "lost_approach_phase": l_phase,
+                 "lost_approach_dist_m": np.asarray(out["approach_dist_m"])[lost].astype(np.float32),
+                 "lost_approach_valid": np.asarray(out["approach_valid"])[lost],
+                 "lost_source": np.asarray(out["source"])[lost].astype(np.int8),
+                 "lost_track_id": np.asarray(out["track_id"])[lost].astype(np.int32),
+                 "lost_switch_at_m": np.asarray(out["switch_at_m"])[lost].astype(np.float32)}
+    return {**lost_part,
+            "state": state.reshape(-1, state.shape[-1]), "heightmap": hm.reshape(-1, hm.shape[-1]),
             "phase": phase.reshape(n_s * n_w, phase.shape[-1]),
             "approach_state": a_state, "approach_heightmap": a_hm, "approach_phase": a_phase,
             "approach_dist_m": np.asarray(out["approach_dist_m"])[v].astype(np.float32),
             "approach_valid": np.asarray(out["approach_valid"])[v],
+            "lead_dist_m": np.asarray(out["lead_dist_m"])[v].astype(np.float32),
             "label": rows(out["label"], np.int8),
             "sample": (first_sample + np.flatnonzero(v)[k]).astype(np.int32),
             "offset": np.tile(np.asarray(window, np.int8), n_s),
@@ -304,15 +328,17 @@ def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
 
 # Every session adding parts to a sweep must share these; of the config only the keys below may
 # differ (more points extend a sweep; the lookup bin applies to the merged data only).
-RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed", "context")
+RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed", "context",
+               "lead_in", "lead_m")
 PROGRESS_CONFIG_KEYS = ("n_points", "lookup_bin_m", "approach_queries")  # extra records only
-CONFIG_KEY_DEFAULTS = {"switch_min_m": 0.0}  # what sweeps made before a key existed used
+CONFIG_KEY_DEFAULTS = {"switch_min_m": 0.0, "lead_jitter_m": 0.2}  # what sweeps made before a key existed used
 
 
 def resume_key(meta: dict) -> dict:
     """The part of a sweep's meta (as JSON) that the parts already made depend on."""
     key = json.loads(json.dumps({k: meta.get(k) for k in RESUME_KEYS}, default=str))
     key["context"] = bool(key["context"])  # absent in sweeps made before context sweeps existed
+    key["lead_in"] = bool(key["lead_in"])
     key["config"] = {k: v for k, v in {**CONFIG_KEY_DEFAULTS, **(key["config"] or {})}.items()
                      if k not in PROGRESS_CONFIG_KEYS}
     return key
@@ -332,10 +358,13 @@ class SweepRun(NamedTuple):
 
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
               n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
-              print_fn=print, backend: str = "auto", context: bool = False) -> SweepRun:
+              print_fn=print, backend: str = "auto", context: bool = False,
+              lead_in: bool = False, lookup_results="experiments/results/lookup") -> SweepRun:
     """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind, on the
     physics `backend`, in an env with the policy suite's env overrides. With `context`, the
-    tracks are `context_plan`'s two-artifact tracks and the data go to `<init>_context/`.
+    tracks are `context_plan`'s two-artifact tracks and the data go to `<init>_context/`; with
+    `lead_in`, `leadin_plan`'s, walk leading in by the context lookup (under `lookup_results`),
+    to `<init>_leadin/`.
 
     part_dir/meta.json keeps `wall_s_total`, the sum of the wall times of the sessions that ran
     batches; it is updated after every part and on an exception, so an interrupted session's time
@@ -343,16 +372,20 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
     t_start = time.perf_counter()
     if target not in terrain.ARTIFACT_KINDS:
         raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
-    name = sweep_name(init, context)
+    name = sweep_name(init, context, lead_in)
     part_dir = out_dir / name / target
     part_dir.mkdir(parents=True, exist_ok=True)
     env, suite, track_src, track_tidx = sweep_env(init, target, cfg, runs, n_tracks, stand_in,
-                                                  backend, context)
+                                                  backend, context, lead_in)
+    lead_m = lead_table(init, lookup_results) if lead_in else None
     meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
             "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
             "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale,
             "env_overrides": dict(suite.env_overrides),
-            "backend": env_lib.resolve_backend(backend), "context": bool(context)}
+            "backend": env_lib.resolve_backend(backend), "context": bool(context or lead_in),
+            "lead_in": bool(lead_in),
+            "lead_m": None if lead_m is None else [[None if np.isnan(v) else round(float(v), 4)
+                                                    for v in row] for row in lead_m]}
     meta_path = part_dir / "meta.json"
     wall0 = 0.0
     if meta_path.exists():
@@ -372,7 +405,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
 
     write_meta(wall0)
     others = np.array([j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]])
-    runner = make_runner(env, suite.apply, target, cfg, guide_scale, track_tidx)
+    runner = make_runner(env, suite.apply, target, cfg, guide_scale, track_tidx, lead_m=lead_m)
     parts = sorted(part_dir.glob("part_*.npz"))
     have = sum(int(np.load(p)["label"].shape[0]) for p in parts)
     b = len(parts)

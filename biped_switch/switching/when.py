@@ -234,22 +234,29 @@ def rows_from_sweep(data: dict, target: str, grid: tuple[int, int]) -> Rows:
     feats = jax.jit(features, static_argnums=6)
     x_now = np.asarray(feats(np.full(n_now, code), data["source"][at0], data["switch_dist_m"][at0],
                              data["phase"][at0], data["state"][at0], data["heightmap"][at0], grid))
-    valid = data["approach_valid"]
-    s_idx, q_idx = np.nonzero(valid)
-    x_wait = np.asarray(feats(np.full(len(s_idx), code), sample["source"][s_idx],
-                              data["approach_dist_m"][s_idx, q_idx],
-                              data["approach_phase"][s_idx, q_idx],
-                              data["approach_state"][s_idx, q_idx],
-                              data["approach_heightmap"][s_idx, q_idx], grid))
-    d_now = np.concatenate([data["switch_dist_m"][at0], data["approach_dist_m"][s_idx, q_idx]])
-    d_later = np.concatenate([sample["switch_dist_m"], sample["switch_dist_m"][s_idx]])
-    return Rows(np.concatenate([x_now, x_wait]).astype(np.float32), d_now.astype(np.float32),
-                d_later.astype(np.float32),
-                np.concatenate([sample["label"], sample["label"][s_idx]]).astype(np.float32),
-                np.concatenate([sample["track_id"], sample["track_id"][s_idx]]),
-                np.concatenate([np.ones(n_now, bool), np.zeros(len(s_idx), bool)]),
-                np.concatenate([sample["source"], sample["source"][s_idx]]).astype(np.int32),
-                np.full(n_now + len(s_idx), code, np.int32))
+    parts = [(x_now, data["switch_dist_m"][at0], sample["switch_dist_m"], sample["label"],
+              sample["track_id"], np.ones(n_now, bool), sample["source"])]
+
+    def waits(prefix, source, track, switch_m, label):
+        """Wait rows: each reached approach record, labelled with its episode's outcome."""
+        s_idx, q_idx = np.nonzero(data[f"{prefix}approach_valid"])
+        x = np.asarray(feats(np.full(len(s_idx), code), source[s_idx],
+                             data[f"{prefix}approach_dist_m"][s_idx, q_idx],
+                             data[f"{prefix}approach_phase"][s_idx, q_idx],
+                             data[f"{prefix}approach_state"][s_idx, q_idx],
+                             data[f"{prefix}approach_heightmap"][s_idx, q_idx], grid))
+        return (x, data[f"{prefix}approach_dist_m"][s_idx, q_idx], switch_m[s_idx],
+                label[s_idx], track[s_idx], np.zeros(len(s_idx), bool), source[s_idx])
+
+    parts.append(waits("", sample["source"], sample["track_id"], sample["switch_dist_m"],
+                       sample["label"]))
+    if "lost_source" in data:  # fell while waiting, before the switch distance: a failed wait
+        parts.append(waits("lost_", data["lost_source"], data["lost_track_id"],
+                           data["lost_switch_at_m"], np.zeros(len(data["lost_source"]))))
+    x, d_now, d_later, label, track, now, source = (np.concatenate(c) for c in zip(*parts))
+    return Rows(x.astype(np.float32), d_now.astype(np.float32), d_later.astype(np.float32),
+                label.astype(np.float32), track, now, source.astype(np.int32),
+                np.full(len(label), code, np.int32))
 
 
 def concat_rows(rows: Sequence[Rows]) -> Rows:

@@ -1,0 +1,85 @@
+"""The tracks of the switch-point sweeps, and which policy acts before the switch on each.
+
+Three plans, one per kind of sweep:
+  the paper's    single-artifact tracks of the target kind; sources cycle over the other policies
+                 and start on flat ground before it
+  context        two-artifact tracks: an artifact policy j crosses its own artifact, then hands
+                 over before the target's ([j, target], switch before the 2nd); walk switches
+                 before an [target, other] track's first
+  lead-in        as on Table II's tracks: walk starts every episode and the controller hands over
+                 along the track by the context lookup table (jittered), so the source j took over
+                 from walk or from another artifact's policy before crossing its own artifact:
+                 [j, target], [x, j, target] for each kind x != j; walk as in the context plan
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from biped_switch.config import SWEEP_TRACK_SEED, default_terrain_config
+from biped_switch.learning import policies as pol
+from biped_switch.simulation import env as env_lib
+from biped_switch.simulation import terrain
+
+
+def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **overrides):
+    """Single-artifact `target` tracks SWEEP_TRACK_SEED + i; `overrides` (env config: the physics
+    `backend`, the suite's action mode and phase clock) go to `env.make_env`."""
+    return env_lib.make_env(target, init, n_artifacts=1, n_tracks=n_tracks,
+                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
+
+
+def _others(target: str) -> list[int]:
+    return [j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]]
+
+
+def _plan(target: str, n_tracks: int, artifact_track) -> tuple[list[list[str]], np.ndarray,
+                                                                np.ndarray]:
+    """Track i's source cycles over the target's other policies. Walk only ever acts before a
+    track's first artifact: [target, another kind] (the 2nd cycling), switch before the 1st. An
+    artifact source j gets `artifact_track(j's name, round)`, ending in the target's artifact,
+    switched before."""
+    others = _others(target)
+    after = [k for k in terrain.ARTIFACT_KINDS if k != target]
+    kinds, src, tidx = [], [], []
+    for i in range(n_tracks):
+        j, rnd = others[i % len(others)], i // len(others)
+        name = pol.POLICY_NAMES[j]
+        kinds.append([target, after[rnd % len(after)]] if name == "walk"
+                     else artifact_track(name, rnd))
+        tidx.append(0 if name == "walk" else len(kinds[-1]) - 1)
+        src.append(j)
+    return kinds, np.asarray(src, np.int32), np.asarray(tidx, np.int32)
+
+
+def context_plan(target: str, n_tracks: int) -> tuple[list[list[str]], np.ndarray, np.ndarray]:
+    """(artifact kinds, source policy, target artifact index) per track of a context sweep.
+
+    On a `mixed` track an artifact policy hands over after crossing its own artifact, and walk
+    only before the first: so an artifact source gets [its kind, target] and switches before the
+    2nd artifact; walk gets [target, another kind] and switches before the 1st (the plain sweep's
+    situation)."""
+    return _plan(target, n_tracks, lambda name, rnd: [name, target])
+
+
+def leadin_plan(target: str, n_tracks: int) -> tuple[list[list[str]], np.ndarray, np.ndarray]:
+    """(artifact kinds, source policy, target artifact index) per track of a lead-in sweep.
+
+    Sources and walk's tracks as in `context_plan`. An artifact source j's tracks cycle over what
+    comes before its artifact: nothing ([j, target]: walk hands over to j) or each other kind x
+    ([x, j, target]: walk -> x -> j), as a mixed track's neighbours never repeat a kind."""
+    def track(name, rnd):
+        before = [[]] + [[k] for k in terrain.ARTIFACT_KINDS if k != name]
+        return before[rnd % len(before)] + [name, target]
+
+    return _plan(target, n_tracks, track)
+
+
+def make_context_env(kinds, init: str, difficulty: float = 1.0, **overrides):
+    """Tracks SWEEP_TRACK_SEED + i of the kinds `kinds[i]` (a plan's; up to 3 artifacts each,
+    the bank padded to the longest)."""
+    tcfg = default_terrain_config(max(len(k) for k in kinds))
+    tracks = [terrain.sequence_track(SWEEP_TRACK_SEED + i, k, 1.0, tcfg)
+              for i, k in enumerate(kinds)]
+    return env_lib.make_env("mixed", init, terrain_cfg=tcfg, tracks=tracks, n_tracks=len(tracks),
+                            seed=SWEEP_TRACK_SEED, difficulty=difficulty, **overrides)
