@@ -67,6 +67,7 @@ from biped_switch.reports.table1 import table1_markdown
 from biped_switch.reports.fig4b import plot_switch_distances
 from biped_switch.evaluation.multi import (BASELINES, LEARNED_METHODS, MULTI_METHODS,
                                            RANDOM_INIT_METHODS, SETUP_METHODS, available_methods,
+                                           setup_key,
                                            evaluate_multi, merge_rows, mixed_track, trial_track)
 from biped_switch.reports.table2 import (claims_markdown, failures_by_context, failures_markdown,
                                          paper_claims, policy_on_falls, policy_on_falls_markdown, suite_ceiling, ceiling_markdown,
@@ -148,8 +149,8 @@ def main(argv=None) -> int:
     cli.add_init(r)
     cli.add_out(r, "experiments/results/table3", "table3.md and .json")
     f = sub.add_parser("failures", help="Table II's falls by artifact and the artifact before it")
-    cli.add_out(f, "experiments/results/table2", "failures_by_context.md and .json, beside "
-                "the table2.json and table2_trials.npz of `evaluate multi` it reads")
+    cli.add_out(f, "experiments/results/table2", "failures_by_context.md and .json, and claims.md "
+                "afresh, beside the table2.json and table2_trials.npz of `evaluate multi` it reads")
     w = sub.add_parser("switches", help="where each rule switched, and what it cost "
                                         "(switch_distances.md/.json/.png)")
     w.add_argument("--methods", nargs="+", default=["com_over_feet", "lookup", "lookup_context",
@@ -318,6 +319,9 @@ def _main_failures(out: pathlib.Path) -> int:
         (out / "ceiling.json").write_text(json.dumps(ceil, indent=1))
     print(md)
     (out / "failures_by_context.md").write_text(md + "\n")
+    # the claims on the table as it stands (rows joined from several `evaluate multi` runs)
+    claims = claims_markdown(paper_claims(json.loads((out / "table2.json").read_text())["rows"]))
+    (out / "claims.md").write_text(claims + "\n")
     (out / "failures_by_context.json").write_text(json.dumps(by_method, indent=1))
     if on_falls:
         (out / "policy_on_falls.json").write_text(json.dumps(on_falls, indent=1))
@@ -455,13 +459,13 @@ def _main_multi(a, p) -> int:
     for method in a.methods:
         if a.fig5_trial < 0 or method in RANDOM_INIT_METHODS:
             continue
+        key = setup_key(method)
         if method.startswith("estimator") and "stand" in setups:
             suffix, s, trial = method.removeprefix("estimator"), setups["stand"], a.fig5_trial
-        elif method in SETUP_METHODS and "stand+setup" in setups:
-            s = setups["stand+setup"]
-            trial, suffix = _setup_trial(s, a.fig5_trial, a.trials), f"_{method}"
-        elif method in LEARNED_METHODS and "stand+learned" in setups:
-            s, trial, suffix = setups["stand+learned"], a.fig5_trial, f"_{method}"
+        elif (method in SETUP_METHODS or method in LEARNED_METHODS) and key in setups:
+            s, suffix = setups[key], f"_{method}"
+            trial = (_setup_trial(s, a.fig5_trial, a.trials) if method in SETUP_METHODS
+                     else a.fig5_trial)
         else:
             continue
         trial %= a.trials

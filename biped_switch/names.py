@@ -21,12 +21,14 @@ BASELINES = ("dqn", "end_to_end")  # trained on the whole mixed domain
 CONTEXT_METHODS = ("lookup_context", "estimator_context", "estimator_context_persist")
 # Ours with setup policies (switching/setup.py): a method of the rows above, and where a trained
 # setup policy exists for (active policy -> target), it acts from detection to its hand-over.
-SETUP_METHODS = ("lookup_context_setup",)
+# `learned_setup`: the learned rule below with the setup policies (a pair without one: the rule).
+SETUP_METHODS = ("lookup_context_setup", "learned_setup")
 # Ours: the learned "when" rule (switching/when.py), trained on the context sweeps' approaches;
 # `learned_no_overlap` is the same rule on the random-init suite (estimator_no_overlap's like).
-LEARNED_METHODS = ("learned", "learned_no_overlap")
+LEARNED_METHODS = ("learned", "learned_no_overlap", "learned_setup")
 RANDOM_INIT_METHODS = ("estimator_no_overlap", "learned_no_overlap")  # random-init suite, start
-MULTI_METHODS = SWITCH_METHODS + BASELINES + CONTEXT_METHODS + SETUP_METHODS + LEARNED_METHODS
+MULTI_METHODS = tuple(dict.fromkeys(SWITCH_METHODS + BASELINES + CONTEXT_METHODS + SETUP_METHODS
+                                    + LEARNED_METHODS))
 # What the terrain detector names: nothing in range, or an artifact kind (class c = kind + 1).
 DETECTOR_CLASSES = ("none",) + ARTIFACT_KINDS
 HEURISTICS = ("random", "detection", "lookup", "com_over_feet")  # the paper's heuristic rows

@@ -294,8 +294,9 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end",
                         "lookup_context", "estimator_context", "estimator_context_persist",
-                        "lookup_context_setup", "learned", "learned_no_overlap"}
+                        "lookup_context_setup", "learned", "learned_no_overlap", "learned_setup"}
     assert f"no learned when rule in {when_dir}/stand" in why["learned"]
+    assert "--policy setup_gaps" in why["learned_setup"]  # its first missing part
     assert "--policy setup_gaps" in why["lookup_context_setup"]
     assert "make train-dqn" in why["dqn"] and "--policy mixed" in why["end_to_end"]
     assert "random-init walk" in why["estimator_no_overlap"]
@@ -317,7 +318,8 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     assert "lookup" not in ok and skipped[0] == (
         f"lookup: the lookup table in {lookup} has no gaps, stairs (python -m biped_switch.sweep "
         "--targets gaps stairs)")
-    later = list(table2.CONTEXT_METHODS + table2.SETUP_METHODS + table2.LEARNED_METHODS)
+    later = list(dict.fromkeys(table2.CONTEXT_METHODS + table2.SETUP_METHODS
+                               + table2.LEARNED_METHODS))  # learned_setup is in both
     assert [s.split(":")[0] for s in skipped[1:]] == later
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
     ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
@@ -328,7 +330,7 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     (lookup / "lookup_stand_context.json").write_text('{"tables": {"gaps": {}}}')
     ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
     assert ok == list(table2.SWITCH_METHODS + table2.BASELINES + table2.CONTEXT_METHODS)
-    assert [s.split(":")[0] for s in skipped] == list(table2.SETUP_METHODS + table2.LEARNED_METHODS)
+    assert [s.split(":")[0] for s in skipped] == later[len(table2.CONTEXT_METHODS):]
     # a setup policy: its run's config says what it serves
     _fake_ckpt(runs / "setup_gaps_stand")
     (runs / "setup_gaps_stand" / "config.json").write_text(
@@ -336,7 +338,8 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     assert table2.find_setup_policies("stand", runs) == {
         "setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)}
     ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
-    assert [s.split(":")[0] for s in skipped] == list(table2.LEARNED_METHODS)
+    assert [s.split(":")[0] for s in skipped] == [m for m in table2.MULTI_METHODS
+                                                  if m in table2.LEARNED_METHODS]
     # the learned when rule of each suite
     for init in ("stand", "random"):
         (when_dir / init).mkdir(parents=True)
@@ -503,7 +506,7 @@ def test_paper_claims_by_hand():
     rows = heur + [_ci_row("estimator", 71, 69, 73), _ci_row("estimator_no_overlap", 1, 0, 2),
                    _ci_row("dqn", 72, 70, 74), _ci_row("end_to_end", 90, 89, 91)]
     got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}  # the paper's table
-    assert [c["verdict"] for c in got.values()] == ["holds"] * 4 + ["not tested"] * 2
+    assert [c["verdict"] for c in got.values()] == ["holds"] * 4 + ["not tested"] * 3
     assert "above all 7 other rows" in got["end-to-end is best"]["evidence"]
     rows[3] = _ci_row("com_over_feet", 70, 68, 72)  # overlaps the estimator: not beaten
     rows[6] = _ci_row("dqn", 80, 78, 82)
@@ -525,11 +528,19 @@ def test_paper_claims_by_hand():
     got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}
     assert got["ours: a learned rule beats every hand-made rule"]["verdict"] == "holds"
     assert got["ours: without overlap the learned rule collapses"]["verdict"] == "holds"
+    setup = "ours: with setup policies too, the learned rule beats the lookup table"
+    assert got[setup]["evidence"] == "missing rows: learned_setup, lookup_context_setup"
+    rows += [_ci_row("learned_setup", 93, 92, 94), _ci_row("lookup_context_setup", 91, 90, 92)]
+    got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}
+    assert got[setup]["verdict"] == "fails"  # 92 touches 92: the CIs overlap
+    rows[-1] = _ci_row("lookup_context_setup", 91, 90, 91.9)
+    got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}
+    assert got[setup]["verdict"] == "holds"
     part = table2_report.paper_claims(heur + [_ci_row("estimator", 71, 69, 73)])
-    assert [c["verdict"] for c in part] == ["holds"] + ["not tested"] * 5
+    assert [c["verdict"] for c in part] == ["holds"] + ["not tested"] * 6
     assert part[1]["evidence"] == "missing rows: estimator_no_overlap"
     md = table2_report.claims_markdown(part)
-    assert md.count("\n") == 7 and "| the DQN is comparable" in md
+    assert md.count("\n") == 8 and "| the DQN is comparable" in md
 
 
 def test_run_batches_covers_each_trial_once_and_reports_progress():
@@ -682,3 +693,19 @@ def test_switches_cli_writes_the_summary_of_its_rollouts(tmp_path, monkeypatch, 
     assert got == want
     assert (tmp_path / "switch_distances_gaps.png").stat().st_size > 5_000
     assert "| lookup | start |" in (tmp_path / "switch_distances.md").read_text()
+
+
+def test_each_method_has_its_rollout_and_rule():
+    """Methods share a compiled rollout only when they share the init, the suite (setup
+    policies or not) and the rule's model; `learned_setup` is the learned rule on the setup
+    suite, and every method is listed once."""
+    keys = {m: table2.setup_key(m) for m in ("lookup", "lookup_context", "estimator_no_overlap",
+                                              "lookup_context_setup", "learned", "learned_setup",
+                                              "learned_no_overlap")}
+    assert keys == {"lookup": "stand", "lookup_context": "stand", "estimator_no_overlap": "random",
+                    "lookup_context_setup": "stand+setup", "learned": "stand+learned",
+                    "learned_setup": "stand+setup+learned",
+                    "learned_no_overlap": "random+learned"}
+    assert table2.base_method("learned_setup") == "learned"
+    assert table2.switch_rule("learned_setup") == "estimator"
+    assert len(set(table2.MULTI_METHODS)) == len(table2.MULTI_METHODS)

@@ -58,6 +58,14 @@ def base_method(method: str) -> str:
     return method.removesuffix("_setup") if method in SETUP_METHODS else method
 
 
+def setup_key(method: str) -> str:
+    """The MultiSetup (one compiled rollout) of `evaluate_multi` that runs a switching method:
+    its init, with setup policies or not, with the learned rule's model or not."""
+    init = "random" if method in RANDOM_INIT_METHODS else "stand"
+    return (init + ("+setup" if method in SETUP_METHODS else "")
+            + ("+learned" if method in LEARNED_METHODS else ""))
+
+
 def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
     """{setup policy name: (target kind, source policy names, hand-over distance [m])} of the
     trained setup policies `names` of an init mode (`train --policy setup_<target>`; default: the
@@ -379,12 +387,9 @@ def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int
         else:
             # the setup methods run a suite with the setup policies, the learned rule its own
             # model: each in a rollout of its own
-            learned = method in LEARNED_METHODS
-            key = (f"{init}+setup" if method in SETUP_METHODS
-                   else f"{init}+learned" if learned else init)
+            learned, key = method in LEARNED_METHODS, setup_key(method)
             if key not in setups:
-                group = [m for m in methods if (m in SETUP_METHODS) == (method in SETUP_METHODS)
-                         and (m in LEARNED_METHODS) == learned]
+                group = [m for m in methods if setup_key(m) == key]
                 bases = {base_method(m) for m in group}
                 need_est = ("estimator_no_overlap" if init == "random" else "estimator") in bases
                 need_ctx = [m for m in CONTEXT_METHODS if m in bases] if init == "stand" else []

@@ -57,8 +57,9 @@ From `experiments/results/table2/table2.md`: {{t2_trials}} random {{t2_artifacts
 are % of trials that end in a fall on that artifact kind. `lookup_context`, `estimator_context` and
 `estimator_context_persist` are ours (context sweeps, docs/switching.md), `learned` and
 `learned_no_overlap` our learned when rule on the stand and random-init suites ("Learning when to
-switch" below), and `lookup_context_setup`
-is `lookup_context` with the setup policies (docs/switching.md, "Setup policies"); `end_to_end` here is the
+switch" below), `lookup_context_setup` is `lookup_context` with the setup policies
+(docs/switching.md, "Setup policies") and `learned_setup` the learned rule with them (a pair
+without a setup policy: the rule decides); `end_to_end` here is the
 curriculum-final policy ({{e2e_steps}} env steps) and `dqn` the {{dqn_steps}}-env-step selector.
 
 {{include table2/table2.md}}
