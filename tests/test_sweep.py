@@ -529,6 +529,7 @@ def test_leadin_plan_by_hand():
         assert k[t] == "gaps" and all(a != b for a, b in zip(k, k[1:]))  # no kind twice in a row
 
 
+@pytest.mark.slow  # a compile of its own (about a minute here): kept out of the default suite
 def test_leadin_hands_over_at_the_table_distance(env):
     """Walk leads in on every episode: before an earlier artifact it hands over to that
     artifact's policy at lead_m[walk, kind] (within one control step's travel), and with the
