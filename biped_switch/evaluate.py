@@ -53,7 +53,7 @@ import time
 import jax
 import numpy as np
 
-from biped_switch import cli
+from biped_switch import cli, paths
 from biped_switch.simulation import env as env_lib
 from biped_switch.config import (EVAL_TRACK_SEED, MULTI_TRACK_SEED, TUNE_TRACK_SEED,
                                  default_when_config)
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
                    help="the learned detector's folder (with --detector learned)")
     cli.add_runs(m)
     m.add_argument("--estimators", default="models/estimators")
-    m.add_argument("--when-dir", default="models/switch_when",
+    m.add_argument("--when-dir", default=paths.WHEN,
                    help="the learned when rule's models (python -m biped_switch.when)")
     m.add_argument("--when-margin", type=float, default=None,
                    help="learned rule: switch once P(now) >= best later P + this (default: "

@@ -16,6 +16,8 @@ WHEN_DIR = MODELS_DIR / "switch_when"  # the learned when rule, one folder per s
 RUNS = "runs"  # --runs: the parent of training run folders
 ESTIMATORS = "models/estimators"
 LOOKUP = "experiments/results/lookup"
+WHEN = "models/switch_when"  # --when-dir / when --out: the learned when rule's models
+WHEN_SWEEPS = "runs/sweeps_when"  # the when rule's sweeps (context and lead-in)
 RESULTS = "experiments/results"
 SWEEPS = "runs/sweeps"
 

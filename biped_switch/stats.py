@@ -105,6 +105,19 @@ def smoothed_success_pct(rate: np.ndarray, count: np.ndarray, bins: int) -> np.n
         return 100 * s / n
 
 
+def bin_counts(dist_m, label, group, n_groups: int, bin_m: float, n_bins: int):
+    """(successes, trials), each (n_groups, n_bins): outcomes `label` (N,) of switches at
+    `dist_m` (N,) [m] in groups `group` (N,) (a source policy, a (target, source) pair), binned
+    by floor(dist / bin_m), clipped into [0, n_bins). The one success-against-distance table
+    behind the lookup tables, the when rule's prior and the timing ceiling."""
+    # in the distances' own precision: a float32 distance on a bin edge stays in its bin
+    b = np.clip(np.floor(np.asarray(dist_m) / bin_m).astype(int), 0, n_bins - 1)
+    key = np.asarray(group, int) * n_bins + b
+    size = n_groups * n_bins
+    k = np.bincount(key, np.asarray(label, np.float64), size).reshape(n_groups, n_bins)
+    return k, np.bincount(key, minlength=size).reshape(n_groups, n_bins)
+
+
 def brier(p, y) -> float:
     """Mean squared error of probabilities `p` against 0/1 outcomes `y`."""
     p, y = np.asarray(p, np.float64), np.asarray(y, np.float64)

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from biped_switch import paths
 from biped_switch.config import default_env_config, default_when_config
 from biped_switch.names import ARTIFACT_KINDS
 from biped_switch.reports import when as when_report
@@ -35,8 +36,8 @@ from biped_switch.switching import when
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.when", description=__doc__.split("\n")[0])
     p.add_argument("--init", default="stand", choices=("stand", "random"))
-    p.add_argument("--data", default="runs/sweeps_when", help="the sweeps' --out")
-    p.add_argument("--out", default="models/switch_when")
+    p.add_argument("--data", default=paths.WHEN_SWEEPS, help="the sweeps' --out")
+    p.add_argument("--out", default=paths.WHEN)
     p.add_argument("--lead-in", choices=("use", "only", "skip"), default="skip",
                    help="the lead-in sweeps (`sweep --lead-in`), where a target has one: train on "
                         "them and the context sweep (use), in place of it (only), or not (skip: "
@@ -92,14 +93,14 @@ def main(argv=None) -> int:
     for target in ARTIFACT_KINDS:
         path = pathlib.Path(a.data) / name / f"{target}.npz"
         lead_path = pathlib.Path(a.data) / lead / f"{target}.npz"
-        paths = [path] + ([lead_path] if a.lead_in != "skip" and lead_path.exists() else [])
+        use = [path] + ([lead_path] if a.lead_in != "skip" and lead_path.exists() else [])
         if a.lead_in == "only" and lead_path.exists():
-            paths = [lead_path]
-        if not paths[0].exists():
+            use = [lead_path]
+        if not use[0].exists():
             raise FileNotFoundError(f"no sweep at {path}: python -m biped_switch.sweep --init "
                                     f"{a.init} --context --switch-min 0.2 --targets {target} "
                                     f"--out {a.data}")
-        for path in paths:
+        for path in use:
             _read_sweep(path, target, grid, a, rows, est_p, sweeps)
     rows, est_p = when.concat_rows(rows), np.concatenate(est_p)
     data_s = time.perf_counter() - t0
@@ -275,7 +276,7 @@ def _tune(a) -> int:
             cfg.later_from, cfg.band_tol = later_from, band_tol
             setups[later_from, band_tol] = multi.MultiSetup(
                 a.init, a.trials, min(250, a.trials), 60.0, a.runs, None, a.estimators,
-                "experiments/results/lookup", False, False, track_seed=TUNE_TRACK_SEED,
+                paths.LOOKUP, False, False, track_seed=TUNE_TRACK_SEED,
                 when_dir=a.out, when_cfg=cfg)
         setup = setups[later_from, band_tol]
         setup.variants[method] = {"threshold": float(margin), "persist_steps": int(persist)}

@@ -7,6 +7,8 @@ import pathlib
 
 import numpy as np
 
+from biped_switch.stats import bin_counts
+
 PREDICTORS = (("learned", "learned (ours)"), ("table", "(target, source, 5 cm) table"),
               ("paper_estimator", "paper's estimator"))
 
@@ -85,20 +87,22 @@ def write(doc: dict, out_dir) -> None:
 
 # ----------------------------------------------------------------------- the timing ceiling
 def best_bin(dist_m, label, lost_m, bin_m: float = 0.05, band=(0.2, 0.9), min_n: int = 50):
-    """The switch-distance bin [m] of width `bin_m` in `band` whose switches succeed most often:
-    (bin start [m], successes, trials), or None when no bin has `min_n` trials. `lost_m`: the
-    intended switch distances of episodes that fell before reaching them, each a failure in its
-    bin. The max over bins is picked after the fact, so it flatters: a generous ceiling for any
-    rule that chooses only the distance."""
-    edges = np.arange(band[0], band[1] + 1e-9, bin_m)
-    best = None
-    for lo in edges[:-1]:
-        m = (dist_m >= lo) & (dist_m < lo + bin_m)
-        k = int(np.asarray(label)[m].sum())
-        n = int(m.sum() + ((lost_m >= lo) & (lost_m < lo + bin_m)).sum())
-        if n >= min_n and (best is None or k / n > best[1] / best[2]):
-            best = (round(float(lo), 3), k, n)
-    return best
+    """The switch-distance bin [m] of width `bin_m` in `band` whose switches succeed most often
+    (the nearest of equals): (bin start [m], successes, trials), or None when no bin has `min_n`
+    trials. `lost_m`: the intended switch distances of episodes that fell before reaching them,
+    each a failure in its bin. The max over bins is picked after the fact, so it flatters: a
+    generous ceiling for any rule that chooses only the distance."""
+    d = np.concatenate([np.asarray(dist_m), np.asarray(lost_m, np.asarray(dist_m).dtype)])
+    y = np.concatenate([np.asarray(label, float), np.zeros(len(lost_m))])
+    first = int(round(band[0] / bin_m))
+    k, n = (a[0, first:] for a in bin_counts(d, y, np.zeros(len(d), int), 1, bin_m,
+                                              int(round(band[1] / bin_m))))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = np.where(n >= min_n, k / n, -1.0)
+    if rate.max() < 0:
+        return None
+    i = int(np.argmax(rate))
+    return round((first + i) * bin_m, 3), int(k[i]), int(n[i])
 
 
 def phase_spread(phase, label, bins: int = 8) -> tuple[float, float, int, float] | None:

@@ -7,6 +7,7 @@ import pathlib
 import numpy as np
 from biped_switch.names import POLICY_INDEX, POLICY_NAMES
 from biped_switch.names import ARTIFACT_KINDS
+from biped_switch.stats import bin_counts
 from biped_switch.switching.estimator import sweep_name
 
 
@@ -17,13 +18,8 @@ def lookup_table(dist_m, label, source, target: str, bin_m: float = 0.01, max_m:
     Returns {"bins_m": bin lower edges, "rate": (P, nbins) NaN where empty, "count": (P, nbins),
     "best_m": (P,) centre of the best bin (NaN for the target itself or no data)}. Ties go to the
     bin farthest from the artifact (the first maximum scanning from 0.9 m down)."""
-    nb = int(round(max_m / bin_m))
-    b = np.clip(np.floor(np.asarray(dist_m) / bin_m).astype(int), 0, nb - 1)
-    P = len(POLICY_NAMES)
-    count = np.zeros((P, nb))
-    succ = np.zeros((P, nb))
-    np.add.at(count, (np.asarray(source), b), 1)
-    np.add.at(succ, (np.asarray(source), b), np.asarray(label, float))
+    succ, count = bin_counts(dist_m, label, source, len(POLICY_NAMES), bin_m,
+                             int(round(max_m / bin_m)))
     with np.errstate(invalid="ignore", divide="ignore"):
         rate = succ / count
     return table_from_rates(rate, count, target, bin_m)

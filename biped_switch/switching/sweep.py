@@ -51,7 +51,9 @@ from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.simulation import terrain
 from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_switching_config
+from biped_switch.paths import LOOKUP
 from biped_switch.switching.estimator import sweep_name
+from biped_switch.switching.lookup import load_context_lookup
 from biped_switch.simulation.observation import layout
 from biped_switch.simulation.rollout import episode_keys, over_devices, reset_by_track, run_episodes
 from biped_switch.switching.labels import (label_step, labelling_init, window_fill, window_init,
@@ -206,13 +208,6 @@ def sweep_env(init: str, target: str, cfg, runs, n_tracks: int, stand_in=None,
     return env, pol.load_suite(init, env, runs, stand_in=stand_in), track_src, track_tidx
 
 
-def lead_table(init: str, results="experiments/results/lookup") -> np.ndarray:
-    """The lead-in's hand-over distances: the context lookup table (P, N_TARGETS) [m]."""
-    from biped_switch.switching.lookup import load_context_lookup
-
-    return load_context_lookup(init, results)[0]
-
-
 def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, backend="auto",
                   tol_m: float = 1e-4, band_m=(0.3, 0.9), seed: int = 0, print_fn=print) -> dict:
     """Label noise: `n` recorded switches of a sweep (`data`, its merged npz) within `band_m`,
@@ -359,7 +354,7 @@ class SweepRun(NamedTuple):
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
               n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
               print_fn=print, backend: str = "auto", context: bool = False,
-              lead_in: bool = False, lookup_results="experiments/results/lookup") -> SweepRun:
+              lead_in: bool = False, lookup_results=LOOKUP) -> SweepRun:
     """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind, on the
     physics `backend`, in an env with the policy suite's env overrides. With `context`, the
     tracks are `context_plan`'s two-artifact tracks and the data go to `<init>_context/`; with
@@ -377,7 +372,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
     part_dir.mkdir(parents=True, exist_ok=True)
     env, suite, track_src, track_tidx = sweep_env(init, target, cfg, runs, n_tracks, stand_in,
                                                   backend, context, lead_in)
-    lead_m = lead_table(init, lookup_results) if lead_in else None
+    lead_m = load_context_lookup(init, lookup_results)[0] if lead_in else None  # (P, 3) [m]
     meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
             "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
             "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale,

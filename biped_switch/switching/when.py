@@ -46,6 +46,7 @@ from biped_switch.learning.networks import layer_sizes, swish_mlp
 from biped_switch.learning.normalizer import column_stats, standardize
 from biped_switch.names import ARTIFACT_KINDS, POLICY_NAMES
 from biped_switch.simulation.observation import STATE_SIZE
+from biped_switch.stats import bin_counts
 from biped_switch.switching.detector import profile
 
 N_TARGETS, N_SOURCES = len(ARTIFACT_KINDS), len(POLICY_NAMES)
@@ -274,6 +275,11 @@ def is_val(track_ids, cfg=None) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------- training
+def _pair(rows: Rows) -> np.ndarray:
+    """Each row's (target, active policy) pair as one index (setup policies as the last)."""
+    return rows.target * N_SOURCES + np.clip(rows.source, 0, N_SOURCES - 1)
+
+
 def bce(logits, y):
     return jnp.mean(optax.sigmoid_binary_cross_entropy(logits, y))
 
@@ -284,14 +290,9 @@ def fit_prior(rows: Rows, cfg=None) -> dict:
     each is an outcome of switching at its d'), as logits. What a rule that knows only the pair
     and the distance knows; the network learns the state's correction to it."""
     cfg = cfg or default_when_config()
-    bin_m, hi_m = float(cfg.prior_bin_m), float(cfg.grid_m[1])
-    nb = int(round(hi_m / bin_m))
-    b = np.clip((rows.d_later / bin_m).astype(int), 0, nb - 1)
-    src = np.clip(rows.source, 0, N_SOURCES - 1)
-    key = (rows.target * N_SOURCES + src) * nb + b
-    size = N_TARGETS * N_SOURCES * nb
-    k = np.bincount(key, rows.label, size)
-    n = np.bincount(key, minlength=size)
+    bin_m = float(cfg.prior_bin_m)
+    nb = int(round(float(cfg.grid_m[1]) / bin_m))
+    k, n = bin_counts(rows.d_later, rows.label, _pair(rows), N_TARGETS * N_SOURCES, bin_m, nb)
     rate = ((k + 1) / (n + 2)).reshape(N_TARGETS, N_SOURCES, nb)
     return {"prior": np.log(rate / (1 - rate)).astype(np.float32),
             "prior_lo_m": np.asarray(0.0, np.float32), "prior_bin_m": np.asarray(bin_m, np.float32)}
@@ -414,19 +415,14 @@ OFFLINE_BAND_M = (0.3, 0.9)  # where the decision is made: the rows the offline 
 
 def table_predict(tr: Rows, va: Rows, bin_m: float = 0.05) -> np.ndarray:
     """The (target, active policy, distance bin) success table of the training tracks' switch
-    rows, (k + 1) / (n + 2) per bin, read at each validation row: what a rule that knows only the
-    pair and the distance can know."""
-    def key(r):
-        return (r.target * N_SOURCES + r.source) * 1000 + np.floor(r.d_now / bin_m).astype(int)
-
-    k_tr = key(take(tr, tr.now))
-    y_tr = tr.label[tr.now]
-    uniq, inv = np.unique(k_tr, return_inverse=True)
-    rate = (np.bincount(inv, y_tr) + 1) / (np.bincount(inv) + 2)
-    k_va = key(va)
-    pos = np.searchsorted(uniq, k_va)
-    found = (pos < len(uniq)) & (uniq[np.minimum(pos, len(uniq) - 1)] == k_va)
-    return np.where(found, rate[np.minimum(pos, len(uniq) - 1)], y_tr.mean())
+    rows, (k + 1) / (n + 2) per bin, read at each validation row (an empty bin: the training
+    switches' mean): what a rule that knows only the pair and the distance can know."""
+    sw = take(tr, tr.now)
+    nb = int(np.floor(max(sw.d_now.max(), va.d_now.max()) / bin_m)) + 1  # no bin clipped
+    k, n = bin_counts(sw.d_now, sw.label, _pair(sw), N_TARGETS * N_SOURCES, bin_m, nb)
+    b = np.floor(va.d_now / bin_m).astype(int)
+    k, n = k[_pair(va), b], n[_pair(va), b]
+    return np.where(n > 0, (k + 1) / np.maximum(n + 2, 1), sw.label.mean())
 
 
 def offline_scores(preds: dict, va: Rows, band=OFFLINE_BAND_M) -> list[dict]:
