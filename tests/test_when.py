@@ -348,3 +348,18 @@ def test_phase_spread_by_hand():
     assert (lo, hi, n_min) == (0.0, 100.0, 2) and 0 < p < 1
     assert when_report.phase_spread(phase, np.ones(8), 4)[3] == 1.0  # no failure: nothing to test
     assert when_report.phase_spread(phase[:2], np.ones(2), 4) is None  # empty sectors
+
+
+def test_bin_counts_against_a_python_loop():
+    rng = np.random.default_rng(3)
+    d = rng.uniform(-0.1, 1.0, 500).astype(np.float32)
+    y = rng.integers(0, 2, 500)
+    g = rng.integers(0, 3, 500)
+    k, n = stats.bin_counts(d, y, g, 3, 0.05, 18)
+    k_ref, n_ref = np.zeros((3, 18)), np.zeros((3, 18), int)
+    for di, yi, gi in zip(d, y, g):  # below the first bin or past the last: clipped into them
+        b = min(max(int(np.floor(di / np.float32(0.05))), 0), 17)
+        k_ref[gi, b] += yi
+        n_ref[gi, b] += 1
+    np.testing.assert_array_equal(k, k_ref)
+    np.testing.assert_array_equal(n, n_ref)
