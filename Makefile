@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: reproduce install demo docs notebooks test test-all test-deps bench bench-train bench-estimator bench-1art train train-all render-deps wheels clean train-estimators train-dqn
+.PHONY: reproduce reproduce-paper install demo docs notebooks test test-all test-deps bench bench-train bench-estimator bench-1art train train-all render-deps wheels clean train-estimators train-dqn
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -52,8 +52,8 @@ test-deps:
 bench: $(STAMP)
 	$(PY) -m biped_switch.bench --batch 256 --kind mixed --json
 
-bench-train: $(STAMP)  ## PPO env steps/s (collection + updates) and compile time, default backend
-	$(PY) -m biped_switch.bench --train --json
+bench-train: $(STAMP)  ## PPO env steps/s on mixed tracks, and its ratio to the raw physics rate
+	$(PY) -m biped_switch.bench --train --kind mixed --json
 
 bench-estimator: $(STAMP)  ## switch-estimator training speed (first epoch compiles, then steady epochs)
 	$(PY) -m biped_switch.bench --estimator --points 100000 --epochs 3 --json
@@ -75,9 +75,14 @@ train: $(STAMP)
 # warm-start sources first, into runs/replay/<run>/ (a rerun resumes; `evaluate --runs runs/replay`
 # reads the result). RECIPES picks runs, e.g. RECIPES=models/policies/walk_stand. The DQN's recipes
 # replay the same way: `python -m biped_switch.train --recipe models/baselines/dqn_stand`.
+# SEED=1: a second training seed of the recipes, into runs/replay_seed1/ (sources: its own replays).
+# JOBS=3: up to three replays at a time, one mujoco thread each, a recipe starting once its
+# sources have replayed far enough (the artifact policies side by side after walk's 32.37M).
 RECIPES ?= models/policies/*/
+SEED ?=
+JOBS ?= 1
 train-all: $(STAMP)
-	$(PY) -m biped_switch.train --recipe $(RECIPES)
+	$(PY) -m biped_switch.train --recipe $(RECIPES) $(if $(SEED),--seed $(SEED)) --jobs $(JOBS)
 
 # Offscreen rendering on a CPU host: OSMesa (Debian's libosmesa6), installed with apt (as root)
 # unless already there (then this returns at once). A GPU host uses EGL.
@@ -117,10 +122,48 @@ DQN_ARGS ?=
 train-dqn: $(STAMP)
 	$(PY) -m biped_switch.dqn $(DQN_ARGS)
 
+# Every row we publish, from a folder of trained policy runs RUNS (e.g. runs/replay_seed1 of
+# `make train-all SEED=1`: walk, jumps, gaps, stairs and setup_gaps, stand init) into a results
+# folder of its own, OUT (never experiments/results/ or models/; OUT/results/ is laid out as
+# experiments/results/). scripts/reproduce.sh runs, each command with --runs $(RUNS):
+#  1. the lookup tables: the context sweep of CONTEXT_TARGETS (committed: gaps, 50,000 points) and
+#     the flat-start sweep of the other targets (jumps and stairs, 100,000 points each), whose
+#     entries lookup_context takes where the context table has none;
+#  2. the learned when rule: context sweeps with approach records (--switch-min 0.2; gaps 40,000,
+#     stairs and jumps 25,000 points), then `when` into OUT/switch_when/;
+#  3. the setup policy's evaluation (512 held-out tracks, with and without setup_gaps);
+#  4. Table I (500 trials, tracks 10,000+, TABLE1_INITS); 5. Table II rows lookup_context, learned,
+#     lookup_context_setup and learned_setup (2,500 trials, tracks 30,000+), read from OUT's lookup
+#     tables and when rule and RUNS' setup policy; 6. Table III from the logs.
+# Each step's wall time goes to OUT/wall_times.tsv (its log to OUT/logs/); a rerun skips the steps
+# that finished with the same command, and sweeps resume from their parts. The sizes are the
+# committed rows'; a quick check of the chain, e.g. `make reproduce RUNS=models/policies
+# OUT=/tmp/repro SWEEP_POINTS=300 SWEEP_BATCH=32 TRIALS1=8 TRIALS2=8 SETUP_EPISODES=8`.
+RUNS ?= runs/replay_seed1
+OUT ?= runs/reproduce/$(notdir $(patsubst %/,%,$(RUNS)))
+SWEEP_POINTS ?=# set: every sweep makes this many points per target (in place of the sizes below)
+PLAIN_POINTS ?= $(or $(SWEEP_POINTS),100000)
+CONTEXT_POINTS ?= $(or $(SWEEP_POINTS),50000)
+WHEN_POINTS_GAPS ?= $(or $(SWEEP_POINTS),40000)
+WHEN_POINTS ?= $(or $(SWEEP_POINTS),25000)
+SWEEP_BATCH ?=# episodes per jitted sweep batch (empty: the config's)
+CONTEXT_TARGETS ?= gaps
+TABLE1_INITS ?= stand
+TRIALS1 ?= 500
+TRIALS2 ?= 2500
+SETUP_EPISODES ?= 512
+reproduce: $(STAMP)
+	PY=$(PY) RUNS='$(RUNS)' OUT='$(OUT)' SWEEP_BATCH='$(SWEEP_BATCH)' \
+	  CONTEXT_TARGETS='$(CONTEXT_TARGETS)' TABLE1_INITS='$(TABLE1_INITS)' \
+	  PLAIN_POINTS='$(PLAIN_POINTS)' CONTEXT_POINTS='$(CONTEXT_POINTS)' \
+	  WHEN_POINTS_GAPS='$(WHEN_POINTS_GAPS)' WHEN_POINTS='$(WHEN_POINTS)' TRIALS1='$(TRIALS1)' \
+	  TRIALS2='$(TRIALS2)' SETUP_EPISODES='$(SETUP_EPISODES)' bash scripts/reproduce.sh
+
 # The paper's results at full size, from trained policies (make train-all first; a GPU host):
 # sweeps + lookup tables, estimators, the DQN, Table I, Table II (2,500 trials, 8 methods), Table III.
-# Sweeps and training runs resume from their saved parts and checkpoints.
-reproduce: $(STAMP)
+# Sweeps and training runs resume from their saved parts and checkpoints. It writes into the
+# committed folders (experiments/results/, models/).
+reproduce-paper: $(STAMP)
 	$(PY) -m biped_switch.sweep --init stand
 	$(PY) -m biped_switch.sweep --init random
 	$(MAKE) train-estimators train-dqn

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from biped_switch import paths
@@ -23,6 +24,7 @@ COMMANDS = {
     "bench": "speed benchmarks (JSON)",
     "terrain": "lay out and plot a track",
     "detector": "train the learned terrain detector and measure it",
+    "when": "train the learned when rule, tune it, and its timing ceiling",
 }
 
 
@@ -47,10 +49,42 @@ def add_out(p: argparse.ArgumentParser, default, what: str) -> None:
                    + (f" (default {default})" if default else ""))
 
 
+def add_when_dir(p: argparse.ArgumentParser, help: str = "") -> None:
+    """--when-dir: the learned when rule's models, one folder per suite (`when --out`)."""
+    p.add_argument("--when-dir", default=paths.WHEN,
+                   help=help or "the learned when rule's models (python -m biped_switch.when)")
+
+
 def add_init(p: argparse.ArgumentParser, default: str = "stand") -> None:
     """--init: which policy suite (its episodes start standing, or from random joints)."""
     p.add_argument("--init", default=default, choices=INITS,
                    help="policy suite: stand (standing start) or random (random joints)")
+
+
+# ----------------------------------------------------------------------- numeric flags
+def at_least(lo: float, kind=int, strict: bool = False):
+    """An argparse `type` that reads a `kind` >= `lo` (> `lo` if `strict`); anything else is an
+    argparse error naming the flag and the value given."""
+    op = ">" if strict else ">="
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            what = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if not (v > lo if strict else v >= lo):  # NaN fails both
+            raise argparse.ArgumentTypeError(f"must be {op} {lo:g}, got {text!r}")
+        return v
+
+    parse.__name__ = f"{kind.__name__} {op} {lo:g}"
+    return parse
+
+
+positive_int = at_least(1)  # counts: trials, batch, artifacts, epochs
+nonneg_int = at_least(0)  # seeds, indices
+positive_float = at_least(0.0, float, strict=True)  # durations, distances
+nonneg_float = at_least(0.0, float)  # scales that may be off (0)
 
 
 def usage() -> str:
@@ -61,18 +95,20 @@ def usage() -> str:
 
 def run(main) -> None:
     """Exits with `main()`'s status; a damaged run folder (a file that is not JSON, a truncated
-    checkpoint) ends in one line naming the file instead of a traceback."""
+    checkpoint) ends in one line naming the file instead of a traceback, and nothing after it:
+    the process exits at once, before Orbax's background event loop is torn down (which prints
+    'Event loop is closed' tracebacks at interpreter exit)."""
     from biped_switch.learning.runs import RunFileError
     try:
         code = main()
-    except RunFileError as e:
-        print(f"error: {e}", file=sys.stderr)
-        code = 2
     except Exception as e:
-        if type(e).__name__ != "CheckpointError":  # learning.checkpoints, without importing Orbax here
+        # learning.checkpoints.CheckpointError by name: cli.py imports no Orbax
+        if not isinstance(e, RunFileError) and type(e).__name__ != "CheckpointError":
             raise
         print(f"error: {e}", file=sys.stderr)
-        code = 2
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(2)
     sys.exit(code)
 
 

@@ -18,6 +18,12 @@ EVAL_TRACK_SEED = 10_000  # Table I (`evaluate single`) and the render CLI: neve
 SWEEP_TRACK_SEED = 20_000  # switch-point sweeps (single-artifact tracks)
 MULTI_TRACK_SEED = 30_000  # Table II (`evaluate multi`), Fig. 5 and the demo: mixed tracks
 DETECTOR_TRACK_SEED = 40_000  # the learned terrain detector's data: training and validation tracks
+# ... of which: kind k's training tracks from DETECTOR_TRACK_SEED + DETECTOR_KIND_STRIDE k, its
+# validation tracks DETECTOR_VAL_OFFSET above them, the mixed validation tracks from
+# DETECTOR_TRACK_SEED + DETECTOR_MIXED_OFFSET
+DETECTOR_KIND_STRIDE = 1000
+DETECTOR_VAL_OFFSET = 500
+DETECTOR_MIXED_OFFSET = 9_000
 TUNE_TRACK_SEED = 50_000  # mixed tracks for tuning switching thresholds (`evaluate multi --track-seed`)
 
 
@@ -29,6 +35,11 @@ def default_terrain_config(n_artifacts: int = 7) -> config_dict.ConfigDict:
         step_height_m=0.30,  # `jumps`: a block 0.3 m high ...
         step_length_m=0.16,  # ... and 0.16 m long
         gap_length_m=0.70,
+        # `stones` (issue 57, docs/environment.md): stepping stones, a hole then a raised stone,
+        # alternating; the hole's length and the stone's top scale with difficulty, as above
+        stone_length_m=0.30,  # a stone's top, about a foot (0.24 m) plus a margin
+        stone_height_m=0.15,  # its top above the ground (half the jump block's)
+        stone_hole_m=0.45,  # the hole before each stone (under the gaps' 0.7 m)
         flat_min_m=0.36,  # flat segments (and stair runs) ~ U(0.36, 0.44) m
         flat_max_m=0.44,
         width_min_m=1.1,  # track width ~ U(1.1, 1.7) m, fixed per track
@@ -365,6 +376,10 @@ def default_detector_config() -> config_dict.ConfigDict:
         ahead_from_m=0.05,  # the distance: the first height change beyond this [m] ...
         min_change_m=0.03,  # ... by more than this [m] from the ground under the feet ...
         detect_range_m=0.9,  # ... and within the oracle's detection range [m]
+        # the hand rule (the baseline): a drop this deep or deeper (no ground) is a gap, a rise this
+        # high or higher a jumps block (0.30 m), a smaller rise a stair (0.17 m)
+        hand_gap_drop_m=0.5,
+        hand_jump_rise_m=0.25,
         epochs=400,
         batch_size=1024,
         learning_rate=1e-3,
@@ -378,6 +393,9 @@ def default_detector_config() -> config_dict.ConfigDict:
         # flat before it): chosen on the validation tracks with the debounce
         debounce_via_none=True,
         via_none_choices=(False, True),
+        # the filter chosen: the fewest wrong switches among those that name the mixed tracks'
+        # artifacts at most this late [cm] on average
+        choice_max_late_cm=10.0,
         seed=0,
         # data: each stand policy on its own terrain kind, walk on flat tracks (single kinds, as
         # the premise asks); validation on held-out seeds of the same and on mixed tracks
@@ -434,6 +452,8 @@ def default_setup_config(target: str = "gaps") -> config_dict.ConfigDict:
         target=target,
         sources=SETUP_TARGETS[target]["sources"],  # mixed in one run, alternating over tracks
         suite_init="stand",  # the frozen source and target policies
+        suite_runs="runs",  # ... found under this folder, then models/policies/ (a seeded
+        # replay: its own folder, runs/replay_seed<S>)
         handover_m=SETUP_TARGETS[target]["handover_m"],  # hand over to the target policy this
         # far before its artifact [m]
         source_segments=(4, 5),  # segments of the source artifact (full tracks: 4..9): its exit

@@ -26,12 +26,12 @@ def main(argv=None) -> int:
     p.add_argument("--preset", default=None, choices=("gpu", "cpu"),
                    help="default: cpu on a CPU host, else gpu")
     cli.add_init(p)
-    p.add_argument("--total-steps", type=int, default=None)
-    p.add_argument("--chunk-steps", type=int, default=None)
-    p.add_argument("--num-envs", type=int, default=None)
-    p.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--oracle-bonus", type=float, default=None)
+    p.add_argument("--total-steps", type=cli.positive_int, default=None)
+    p.add_argument("--chunk-steps", type=cli.positive_int, default=None)
+    p.add_argument("--num-envs", type=cli.positive_int, default=None)
+    p.add_argument("--max-chunks", type=cli.positive_int, default=None, help="stop after this many chunks")
+    p.add_argument("--seed", type=cli.nonneg_int, default=0)
+    p.add_argument("--oracle-bonus", type=cli.nonneg_float, default=None)
     cli.add_runs(p, "where the behaviour policies are (then models/policies/)")
     cli.add_out(p, None, "the DQN's run folder (default RUNS/dqn_<init>)")
     p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,

@@ -25,10 +25,10 @@ def main(argv=None) -> int:
     cli.add_out(p, "models/estimators", "one checkpoint folder per estimator, <init>_<target>/")
     p.add_argument("--results", default="experiments/results/estimators",
                    help="metrics JSON, history CSV and curves PNG: RESULTS/<init>_<target>.*")
-    p.add_argument("--epochs", type=int, default=None)
-    p.add_argument("--batch-size", type=int, default=None)
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--log-every", type=int, default=50, help="progress line every N epochs")
+    p.add_argument("--epochs", type=cli.positive_int, default=None)
+    p.add_argument("--batch-size", type=cli.positive_int, default=None)
+    p.add_argument("--seed", type=cli.nonneg_int, default=None)
+    p.add_argument("--log-every", type=cli.positive_int, default=50, help="progress line every N epochs")
     p.add_argument("--context", action="store_true",
                    help="train on the context sweep (`sweep --context`: DATA/<init>_context/); "
                         "checkpoints and results are named <init>_context_<target>")
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
         stem = results / f"{name}_{t}"
         (stem.with_suffix(".json")).write_text(json.dumps(
             {k: v for k, v in meta.items() if k != "sweep_meta"} | {"checkpoint": str(ckpt)},
-            indent=2, default=estimator_lib._jsonable))
+            indent=2, default=estimator_lib.jsonable))
         with stem.with_name(stem.name + "_history.csv").open("w") as fh:
             fh.write("epoch," + ",".join(history) + "\n")
             for i, row in enumerate(zip(*history.values()), 1):

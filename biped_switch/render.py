@@ -10,7 +10,7 @@ import pathlib
 import sys
 import jax
 from biped_switch import cli
-from biped_switch.names import POLICY_NAMES, TERRAIN_KINDS
+from biped_switch.names import ALL_POLICY_NAMES as POLICY_NAMES, TERRAIN_KINDS
 from biped_switch.config import EVAL_TRACK_SEED
 from biped_switch.simulation import render as render_lib
 
@@ -22,21 +22,21 @@ def main(argv=None) -> int:
     p.add_argument("--scripted", action="store_true", help="scripted standing controller, no policy")
     p.add_argument("--kind", default=None, choices=TERRAIN_KINDS, help="terrain kind (default: the policy's)")
     cli.add_runs(p)
-    p.add_argument("--seconds", type=float, default=8.0)
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seconds", type=cli.positive_float, default=8.0)
+    p.add_argument("--seed", type=cli.nonneg_int, default=0,
                    help=f"rng seed; the track's seed is {EVAL_TRACK_SEED:,} + this unless --track-seed")
-    p.add_argument("--track-seed", type=int, default=None,
+    p.add_argument("--track-seed", type=cli.nonneg_int, default=None,
                    help="the track's seed (e.g. one of a Table I row's success_track_seeds)")
     p.add_argument("--table1", default=None, metavar="JSON",
                    help="replay a trial of this table1.json (with --trial): its track and initial state")
-    p.add_argument("--trial", type=int, default=None,
+    p.add_argument("--trial", type=cli.nonneg_int, default=None,
                    help="the trial of --table1's row for --policy/--init (0-based; track seed = "
                         "the row's track_seed + this)")
     cli.add_backend(p)
     cli.add_out(p, "experiments/results/videos", "<policy>_<kind>.gif (a path ending in .gif or "
                 ".mp4 names the file itself)")
     p.add_argument("--size", default="480x320", help="frame WIDTHxHEIGHT in pixels")
-    p.add_argument("--every", type=int, default=2, help="draw every n-th control step (50 Hz)")
+    p.add_argument("--every", type=cli.positive_int, default=2, help="draw every n-th control step (50 Hz)")
     p.add_argument("--colors", type=int, default=256, help="GIF palette size (2-256)")
     p.add_argument("--sheet", default=None, metavar="PNG",
                    help="also write 24 frames spread over the clip as one contact-sheet PNG")

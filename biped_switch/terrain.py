@@ -17,7 +17,7 @@ from biped_switch.simulation import terrain as terrain_lib
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.terrain", description=__doc__.split("\n")[0])
     p.add_argument("--kind", default="mixed", choices=KINDS, help="track kind")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=cli.nonneg_int, default=0)
     p.add_argument("--difficulty", type=float, default=1.0)
     p.add_argument("--json", action="store_true", help="print the track as JSON")
     p.add_argument("--png", help="draw the track (side view) to this file")

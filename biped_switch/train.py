@@ -7,9 +7,7 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import pathlib
-import sys
 import jax
 from biped_switch import cli
 from biped_switch.simulation import env as env_lib
@@ -18,7 +16,6 @@ from biped_switch.config import SETUP_TARGETS, default_train_config
 from biped_switch.learning import trainer
 from biped_switch.reports import curves
 from biped_switch.switching import setup as setup_lib
-
 
 
 def main(argv=None) -> int:
@@ -51,12 +48,13 @@ def main(argv=None) -> int:
                    help="start a new run from the parameters of a checkpoint folder, a run "
                         "folder's latest checkpoint, or a run name (e.g. walk_stand: runs/, then "
                         "models/policies/); ignored when the run resumes")
-    p.add_argument("--total-steps", type=int, default=None)
-    p.add_argument("--chunk-steps", type=int, default=None)
-    p.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks")
+    p.add_argument("--total-steps", type=cli.positive_int, default=None)
+    p.add_argument("--chunk-steps", type=cli.positive_int, default=None)
+    p.add_argument("--max-chunks", type=cli.positive_int, help="stop after this many chunks")
     p.add_argument("--keep-training", action="store_true",
                    help="train on to --total-steps after the curriculum finishes (default: stop)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=cli.nonneg_int, default=None,
+                   help="training seed (default 0); with --recipe, a second seed of the recipes")
     cli.add_out(p, "runs", "one run folder, <policy>_<init>/ (or --name)")
     p.add_argument("--name", default=None, help="run folder name (default <policy>_<init>)")
     p.add_argument("--distributed", action="store_true", help="jax.distributed.initialize() first")
@@ -65,38 +63,40 @@ def main(argv=None) -> int:
                    help="only run the curriculum check of the run's latest checkpoint at these "
                         "guide levels (its own difficulty and pushes), print a table and write "
                         "probe_guides.json in the run folder")
-    p.add_argument("--commit", action="store_true",
-                   help="only copy the run's latest checkpoint, config, metrics and curves to "
-                        "models/policies/<run>/ (then git-commit that folder)")
+    p.add_argument("--commit", action="store_true", help="only copy the run's latest checkpoint, "
+                   "logs and curves to models/policies/<run>/ (with --recipe and --seed S: each "
+                   "replay to models/replay_seedS/<run>/), then git-commit that folder")
     p.add_argument("--recipe", nargs="+", metavar="RUN_DIR",
                    help="only replay committed runs from scratch, each by its recipe.json "
-                        "(e.g. models/policies/gaps_stand; sources first), into OUT/replay/<run>/; "
+                        "(e.g. models/policies/gaps_stand; sources first), into OUT/replay/<run>/ "
+                        "(with --seed S: a second training seed, into OUT/replay_seedS/<run>/); "
                         "the other flags are the recipe's (learning/recipe.py)")
+    p.add_argument("--suite-runs", default=None, metavar="DIR",
+                   help="a setup policy: where its frozen suite is (default runs/, then models/)")
+    p.add_argument("--jobs", type=cli.positive_int, default=1,
+                   help="--recipe: replays at a time, each in its own process with one mujoco "
+                        "thread, a recipe starting once its sources have replayed far enough")
     a = p.parse_args(argv)
     if a.recipe:
         from biped_switch import dqn
         from biped_switch.learning import recipe as recipe_lib
-        out = pathlib.Path(a.out) / "replay"
-        for run_dir in recipe_lib.order(a.recipe):
-            if code := recipe_lib.replay(run_dir, out, {"train": main, "dqn": dqn.main},
-                                         functools.partial(print, flush=True)):
-                return code
-        print(f"replayed into {out}/; evaluate with --runs {out}")
-        return 0
+        try:
+            if a.commit and a.seed is not None:
+                return print(*recipe_lib.commit_replays(a.recipe, a.out, a.seed), sep="\n") or 0
+            return recipe_lib.replay_all(a.recipe, a.out, functools.partial(print, flush=True),
+                                         a.seed, a.jobs, {"train": main, "dqn": dqn.main})
+        except recipe_lib.RecipeError as e:
+            p.error(str(e))
     if a.plot:
         curves.ppo_curves(pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}"),
                              pathlib.Path(a.plot))
         return 0
     if a.probe_guides:
         run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
-        runs_lib.restore_committed(run_dir)
         try:
-            levels = [float(g) for g in a.probe_guides.split(",")]
-            doc = trainer.probe_guides(run_dir, levels, a.seed)
+            print(trainer.probe_guides_report(run_dir, a.probe_guides, a.seed or 0))
         except (ValueError, FileNotFoundError) as e:
             p.error(f"--probe-guides {a.probe_guides}: {e}")
-        print(trainer.probe_markdown(doc))
-        (run_dir / "probe_guides.json").write_text(json.dumps(doc, indent=2))
         return 0
     if a.commit:
         run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
@@ -107,17 +107,14 @@ def main(argv=None) -> int:
     preset = a.preset or ("cpu" if jax.default_backend() == "cpu" else "gpu")
     setup = setup_lib.is_setup_policy(a.policy)
     cfg = setup_lib.setup_train_config(a.policy) if setup else default_train_config(preset)
-    cfg.policy, cfg.init, cfg.seed = a.policy, a.init, a.seed
+    cfg.policy, cfg.init, cfg.seed = a.policy, a.init, a.seed or 0
     if setup:
         cfg.setup.suite_init = a.init
-    if a.backend:
-        cfg.env.backend = a.backend
-    if a.action:
-        cfg.env.action = a.action
-    if a.no_phase:
-        cfg.env.phase_obs = False
-    if a.pd_offset:
-        cfg.env.pd_offset = a.pd_offset
+        cfg.setup.suite_runs = a.suite_runs or cfg.setup.suite_runs
+    for key, value in (("backend", a.backend), ("action", a.action), ("pd_offset", a.pd_offset),
+                       ("phase_obs", False if a.no_phase else None)):
+        if value is not None:
+            cfg.env[key] = value
     if a.warm_start:
         cfg.warm_start = a.warm_start
     cfg.stop_when_done = not a.keep_training

@@ -91,3 +91,54 @@ def test_committed_models_load_through_the_codec():
         assert ckpt is not None, d
         tree, prog = ckpt_lib.load_checkpoint(ckpt)
         assert prog["step"] > 0 and json.dumps(runs_lib.read_config(d))
+
+
+_SAVER = """
+import sys, numpy as np
+from biped_switch.learning import checkpoints as ckpt_lib
+run = sys.argv[1]
+print("ready", flush=True)
+for step in range(1, 100000):
+    tree = {"w": np.full((64, 256), step, np.float32), "b": np.arange(256, dtype=np.float32) + step}
+    ckpt_lib.save_tree(run, step, tree, {"step": step, "pad": "x" * 20000}, keep=2)
+"""
+
+
+def test_kill_9_in_the_middle_of_checkpoint_writes_resumes_from_an_intact_one(tmp_path):
+    """A process saving checkpoints back to back is killed with SIGKILL at random moments, mostly
+    in the middle of a write (Orbax's files or progress.json): every time, the newest intact
+    checkpoint restores, with the tree its progress.json says, and saving goes on after it."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    rng = np.random.default_rng(0)
+    script = tmp_path / "saver.py"
+    script.write_text(_SAVER)
+    for trial in range(3):
+        run = tmp_path / f"run{trial}"
+        proc = subprocess.Popen([sys.executable, str(script), str(run)], stdout=subprocess.PIPE,
+                                text=True)
+        assert proc.stdout.readline().strip() == "ready"
+        time.sleep(1.0 + rng.uniform(0.0, 1.5))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        (tree, prog), ckpt = ckpt_lib.load_newest_intact(run, ckpt_lib.load_checkpoint,
+                                                         lambda s: None, set_aside=True)
+        assert ckpt is not None and int(ckpt.name) == prog["step"]
+        np.testing.assert_array_equal(tree["w"], np.full((64, 256), prog["step"], np.float32))
+        # the next save after a resume lands beside it and is the newest
+        _save(run, prog["step"] + 1, 7.0)
+        assert runs_lib.latest_checkpoint(run).name == f"{prog['step'] + 1:012d}"
+
+
+def test_a_half_written_progress_file_is_passed_over(tmp_path):
+    """A checkpoint whose progress.json was cut short counts as damaged: the resume takes the
+    one before it."""
+    _save(tmp_path, 10, 1.0)
+    cut = _save(tmp_path, 20, 2.0)
+    (cut / "progress.json").write_text('{"step": 2')
+    said = []
+    (tree, prog), ckpt = ckpt_lib.load_newest_intact(tmp_path, ckpt_lib.load_checkpoint, said.append)
+    assert prog["step"] == 10 and ckpt.name == f"{10:012d}" and "progress.json" in said[0]

@@ -12,6 +12,9 @@ from biped_switch.switching import estimator
 from biped_switch.switching import sweep
 from biped_switch.switching import lookup as lookup_lib
 from biped_switch import evaluate as ev
+from biped_switch import methods as methods_lib
+from biped_switch import names
+from biped_switch.products import tables
 from biped_switch.learning import runs as runs_lib
 from biped_switch import stats
 from biped_switch.evaluation import single as table1
@@ -115,13 +118,13 @@ def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
 
     ckpt = fake_policy_run(tmp_path / "runs", "walk")
     made = []
-    make_env = ev.env_lib.make_env
+    make_env = table1.env_lib.make_env
 
     def spy(*args, **kw):
         made.append((kw, make_env(*args, **kw)))
         return made[-1][1]
 
-    monkeypatch.setattr(ev.env_lib, "make_env", spy)
+    monkeypatch.setattr(table1.env_lib, "make_env", spy)
     out = tmp_path / "table1"
     argv = ["single", "--policies", "walk", "--inits", "stand", "--trials", "2", "--batch", "2",
             "--horizon-s", "0.1", "--track-seed", "123", "--runs", str(tmp_path / "runs"),
@@ -141,7 +144,7 @@ def test_single_runs_on_the_tracks_of_track_seed(tmp_path, monkeypatch):
     doc = json.loads((out / "table1.json").read_text())
     row, = doc["rows"]
     assert doc["settings"]["track_seed"] == doc["track_seed"] == row["track_seed"] == 123
-    assert row["backend"] == env.backend == ev.env_lib.resolve_backend("auto")
+    assert row["backend"] == env.backend == table1.env_lib.resolve_backend("auto")
     assert row["horizon_s"] == 0.1 and row["horizon_from"] == "--horizon-s"
     finish = max(terrain.generate_track(123 + i, "walk", 1.0).finish_x_m for i in range(2))
     assert row["finish_m_max"] == pytest.approx(finish, abs=1e-4)
@@ -177,8 +180,8 @@ def test_single_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
         calls.append((policy, init, trials))
         return _table1_row(policy, init, 1.0 if len(calls) > 2 else 0.0)
 
-    monkeypatch.setattr(ev, "evaluate_single", fake_single)
-    monkeypatch.setattr(ev, "find_policy", lambda policy, init, runs: pathlib.Path(f"{policy}_{init}"))
+    monkeypatch.setattr(tables, "evaluate_single", fake_single)
+    monkeypatch.setattr(tables, "find_policy", lambda policy, init, runs: pathlib.Path(f"{policy}_{init}"))
     out = tmp_path / "table1"
     base = ["single", "--trials", "2", "--batch", "2", "--out", str(out)]
     assert ev.main(base + ["--policies", "stairs", "jumps", "--inits", "stand"]) == 0
@@ -289,7 +292,7 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     avail = functools.partial(table2.available_methods, when_dir=when_dir)
     for n in ("walk", "jumps", "gaps", "stairs"):  # the stand suite
         _fake_ckpt(runs / f"{n}_stand")
-    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
     assert ok == ["random", "detection", "com_over_feet"]
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end",
@@ -314,38 +317,38 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
             (est / f"{init}_{k}").mkdir(parents=True)
     lookup.mkdir()
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}}}')  # one target swept
-    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
+    ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
     assert "lookup" not in ok and skipped[0] == (
         f"lookup: the lookup table in {lookup} has no gaps, stairs (python -m biped_switch.sweep "
         "--targets gaps stairs)")
-    later = list(dict.fromkeys(table2.CONTEXT_METHODS + table2.SETUP_METHODS
-                               + table2.LEARNED_METHODS))  # learned_setup is in both
+    later = list(dict.fromkeys(names.CONTEXT_METHODS + names.SETUP_METHODS
+                               + names.LEARNED_METHODS))  # learned_setup is in both
     assert [s.split(":")[0] for s in skipped[1:]] == later
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
-    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
-    assert ok == list(table2.SWITCH_METHODS + table2.BASELINES)
+    ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
+    assert ok == list(names.SWITCH_METHODS + names.BASELINES)
     assert [s.split(":")[0] for s in skipped] == later
     # a context sweep of one target: the other targets keep the plain sweep's parts
     (est / "stand_context_gaps").mkdir()
     (lookup / "lookup_stand_context.json").write_text('{"tables": {"gaps": {}}}')
-    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
-    assert ok == list(table2.SWITCH_METHODS + table2.BASELINES + table2.CONTEXT_METHODS)
-    assert [s.split(":")[0] for s in skipped] == later[len(table2.CONTEXT_METHODS):]
+    ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
+    assert ok == list(names.SWITCH_METHODS + names.BASELINES + names.CONTEXT_METHODS)
+    assert [s.split(":")[0] for s in skipped] == later[len(names.CONTEXT_METHODS):]
     # a setup policy: its run's config says what it serves
     _fake_ckpt(runs / "setup_gaps_stand")
     (runs / "setup_gaps_stand" / "config.json").write_text(
         '{"setup": {"target": "gaps", "sources": ["jumps", "stairs"], "handover_m": 0.45}}')
     assert table2.find_setup_policies("stand", runs) == {
         "setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)}
-    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
-    assert [s.split(":")[0] for s in skipped] == [m for m in table2.MULTI_METHODS
-                                                  if m in table2.LEARNED_METHODS]
+    ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
+    assert [s.split(":")[0] for s in skipped] == [m for m in names.MULTI_METHODS
+                                                  if m in names.LEARNED_METHODS]
     # the learned when rule of each suite
     for init in ("stand", "random"):
         (when_dir / init).mkdir(parents=True)
         (when_dir / init / "meta.json").write_text("{}")
-    ok, skipped = avail(table2.MULTI_METHODS, runs, est, lookup)
-    assert ok == list(table2.MULTI_METHODS) and skipped == []
+    ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
+    assert ok == list(names.MULTI_METHODS) and skipped == []
     assert runs_lib.find_dqn(runs) == runs / "dqn_stand"
     assert runs_lib.find_dqn(runs, dqn_dir=tmp_path / "no_dqn") is None  # an explicit directory only
     assert runs_lib.find_dqn(tmp_path / "no_runs", "random") is None
@@ -372,7 +375,7 @@ def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
     """A found policy (the end-to-end `mixed` one too) with an unfinished curriculum is named with
     its stage; a finished one is not; a policy's run short of its step goal alone is not flagged
     (the curriculum decides), a DQN selector's is."""
-    from biped_switch import demo
+    from biped_switch.products import demo
 
     monkeypatch.setattr(runs_lib, "COMMITTED_DIR", tmp_path / "committed")
     runs = tmp_path / "runs"
@@ -391,12 +394,12 @@ def test_demo_flags_policies_still_in_training(tmp_path, monkeypatch):
     flagged = ["jumps: curriculum unfinished (guides d=1.0 guide=0.05)",
                "stairs: push stage unfinished (push=0.5)",
                "mixed: curriculum unfinished (terrain d=0.6 guide=1.0)"]
-    assert demo._in_training(runs) == flagged
+    assert demo.in_training(runs) == flagged
     # a DQN selector has no curriculum: short of its step goal, it is in training
     _fake_run(runs / "dqn_stand", 60.0, step=256, total_env_steps=1000)
-    assert demo._in_training(runs) == flagged + ["dqn selector: at step 256 of 1,000"]
+    assert demo.in_training(runs) == flagged + ["dqn selector: at step 256 of 1,000"]
     _fake_run(runs / "dqn_stand", 60.0, step=1000, total_env_steps=1000)
-    assert demo._in_training(runs) == flagged
+    assert demo.in_training(runs) == flagged
 
 
 def test_demo_runs_end_to_end_on_the_trained_suite(tmp_path, monkeypatch, capsys):
@@ -428,7 +431,7 @@ def test_demo_runs_end_to_end_on_the_trained_suite(tmp_path, monkeypatch, capsys
     methods = summary["methods"]
     # every method is run or skipped with its reason; the committed suite has what the switching
     # methods need (all four stand-init policies, the estimators and the lookup table)
-    assert set(methods) | {s.split(":")[0] for s in summary["skipped"]} == set(table2.MULTI_METHODS)
+    assert set(methods) | {s.split(":")[0] for s in summary["skipped"]} == set(names.MULTI_METHODS)
     assert {"random", "detection", "lookup", "com_over_feet", "estimator"} <= set(methods)
     assert [r["method"] for r in summary["rows"]] == methods
     assert not any(s.startswith("stand-in") for s in summary["policies"])
@@ -455,14 +458,15 @@ def test_multi_adds_rows_to_a_table_of_the_same_trials(tmp_path, monkeypatch):
     --fresh replaces the table."""
     calls = []
 
-    def fake_multi(methods, trials, batch, *args, per_trial=None, **kw):
-        calls.append((list(methods), trials, batch))
+    def fake_multi(methods, cfg, seed, print_fn=None, per_trial=None):
+        trials = cfg.trials
+        calls.append((list(methods), trials, cfg.batch))
         for m in methods:  # the run's index in the trials' successes, to tell the runs apart
             per_trial[m] = {"success": np.full(trials, float(len(calls)))}
         return [_table2_row(m, 1.0 if len(calls) > 1 else 0.0) for m in methods], {}
 
-    monkeypatch.setattr(ev, "evaluate_multi", fake_multi)
-    monkeypatch.setattr(ev, "available_methods", lambda methods, *a, **k: (list(methods), []))
+    monkeypatch.setattr(tables, "evaluate_multi", fake_multi)
+    monkeypatch.setattr(tables, "available_methods", lambda methods, *a, **k: (list(methods), []))
     out = tmp_path / "table2"
     base = ["multi", "--trials", "2", "--batch", "2", "--fig5-trial", "-1", "--out", str(out)]
     assert ev.main(base + ["--methods", "estimator", "detection"]) == 0
@@ -589,10 +593,10 @@ def test_context_parts_fall_back_per_target_to_the_plain_sweeps(tmp_path):
     np.testing.assert_array_equal(m, want)
     assert used == [f"jumps: {look / 'lookup_stand.json'}", f"gaps: {look / 'lookup_stand_context.json'}",
                     f"stairs: {look / 'lookup_stand.json'}"]
-    assert table2.switch_rule("lookup_context") == "lookup"
-    assert table2.switch_rule("estimator_context") == "estimator"
-    assert table2.switch_rule("estimator_context_persist") == "estimator"
-    assert table2.switch_rule("estimator_no_overlap") == "estimator"
+    assert methods_lib.method("lookup_context").rule == "lookup"
+    assert methods_lib.method("estimator_context").rule == "estimator"
+    assert methods_lib.method("estimator_context_persist").rule == "estimator"
+    assert methods_lib.method("estimator_no_overlap").rule == "estimator"
 
 
 def test_failures_by_context_by_hand():
@@ -663,17 +667,18 @@ def test_switches_cli_writes_the_summary_of_its_rollouts(tmp_path, monkeypatch, 
     ahead[0, 0], ahead[1, :2] = 0.8, [0.5, 0.3]
     calls = []
 
-    def fake_multi(methods, trials, batch, horizon_s, *args, per_trial=None, n_artifacts=7, **kw):
-        calls.append((list(methods), trials, batch, horizon_s, n_artifacts))
+    def fake_multi(methods, cfg, seed, print_fn=None, per_trial=None):
+        calls.append((list(methods), cfg.trials, cfg.batch, cfg.horizon_s, cfg.n_artifacts))
         for m in methods:
             per_trial[m] = {"switch_ahead_m": ahead, "fell": np.array([1.0, 0.0]),
                             "fail_kind": np.array([kinds.index(first[0]), -1]),
                             "progress_frac": np.array([(first[1] + 0.2) / tracks[0].finish_x_m, 1.0])}
         return [], {}
 
-    monkeypatch.setattr(ev, "evaluate_multi", fake_multi)
-    monkeypatch.setattr(ev, "available_methods", lambda methods, *a, **k: (list(methods), []))
-    for bad, text in ((["--trials", "0"], "got 0, 250, 7, 60.0"), (["--horizon-s", "-1"], "-1.0")):
+    monkeypatch.setattr(tables, "evaluate_multi", fake_multi)
+    monkeypatch.setattr(tables, "available_methods", lambda methods, *a, **k: (list(methods), []))
+    for bad, text in ((["--trials", "0"], "argument --trials: must be >= 1, got '0'"),
+                      (["--horizon-s", "-1"], "argument --horizon-s: must be > 0, got '-1'")):
         with pytest.raises(SystemExit):
             ev.main(["switches", "--out", str(tmp_path), *bad])
         assert text in capsys.readouterr().err
@@ -699,13 +704,13 @@ def test_each_method_has_its_rollout_and_rule():
     """Methods share a compiled rollout only when they share the init, the suite (setup
     policies or not) and the rule's model; `learned_setup` is the learned rule on the setup
     suite, and every method is listed once."""
-    keys = {m: table2.setup_key(m) for m in ("lookup", "lookup_context", "estimator_no_overlap",
+    keys = {m: methods_lib.method(m).rollout for m in ("lookup", "lookup_context", "estimator_no_overlap",
                                               "lookup_context_setup", "learned", "learned_setup",
                                               "learned_no_overlap")}
     assert keys == {"lookup": "stand", "lookup_context": "stand", "estimator_no_overlap": "random",
                     "lookup_context_setup": "stand+setup", "learned": "stand+learned",
                     "learned_setup": "stand+setup+learned",
                     "learned_no_overlap": "random+learned"}
-    assert table2.base_method("learned_setup") == "learned"
-    assert table2.switch_rule("learned_setup") == "estimator"
-    assert len(set(table2.MULTI_METHODS)) == len(table2.MULTI_METHODS)
+    assert methods_lib.method("learned_setup").setup_of == "learned"
+    assert methods_lib.method("learned_setup").rule == "estimator"
+    assert len(set(names.MULTI_METHODS)) == len(names.MULTI_METHODS)

@@ -257,3 +257,20 @@ def test_heightmap_matches_numpy_reference_on_slots():
         ref = np.clip((pos[2] - terrain_height_np(t.boxes, xy)) / 2.0, 0.0, 1.0)
         keep = ~edge_mask(t.boxes, xy)
         np.testing.assert_allclose(ours[keep], ref[keep], atol=1e-5)
+
+
+def test_grid_height_is_terrain_height_bit_for_bit():
+    """The heightmap's box-by-box pass makes the same comparisons as `terrain_height`: equal bit
+    for bit, on cells that lie exactly on box edges too (where a reordered test would differ)."""
+    rng = np.random.default_rng(3)
+    boxes = rng.uniform(-1, 1, (12, 6)).astype(np.float32)
+    boxes[:, 3:] = np.abs(boxes[:, 3:]) * 0.5
+    lo = boxes[:, :2] - boxes[:, 3:5]
+    hi = boxes[:, :2] + boxes[:, 3:5]
+    xy = rng.uniform(-1.5, 1.5, (60, 40, 2)).astype(np.float32)
+    xy[0, :12] = lo  # on the lower corners
+    xy[1, :12] = hi  # on the upper corners
+    b, p = jnp.asarray(boxes), jnp.asarray(xy)
+    ref = np.asarray(hm.terrain_height(b, p))
+    np.testing.assert_array_equal(np.asarray(hm.grid_height(b, p)), ref)
+    assert (ref[0, :12] > hm.NO_GROUND_Z_M).all() and (ref > hm.NO_GROUND_Z_M).mean() > 0.2

@@ -80,7 +80,7 @@ def make_synthetic_results(root: pathlib.Path) -> pathlib.Path:
     from biped_switch.simulation import terrain
     from biped_switch.learning.policies import POLICY_NAMES
     from biped_switch.stats import episode_table
-    from biped_switch.evaluation.multi import SWITCH_METHODS
+    from biped_switch.names import SWITCH_METHODS
 
     rng = np.random.default_rng(0)
     curr = {"stage": 0, "stage_name": "terrain", "difficulty": 0.3, "guide_scale": 1.0,
@@ -417,7 +417,7 @@ def test_recompute_commands_parse(tmp_path, monkeypatch, capsys):
     settings = {"methods": ["random", "estimator"], "trials": 8, "batch": 4, "horizon_s": 20.0,
                 "seed": 1, "runs": "runs", "estimators": "models/estimators", "stand_in": "walk",
                 "guide_scale": 0.5, "fig5_trial": 0, "policies": ["jumps"], "inits": ["stand"]}
-    monkeypatch.setattr(evaluate, "_main_multi", _stop)
+    monkeypatch.setattr(evaluate.tables, "multi", _stop)
     monkeypatch.setattr(sweep, "run_sweep", _stop)
     monkeypatch.setattr(estimator, "load_data", _stop)
     monkeypatch.setattr(train, "train", _stop)

@@ -180,3 +180,130 @@ def test_no_committed_copy_is_scoped(tmp_path):
         assert runs_lib.read_config(run, committed=True) == {}
     assert runs_lib.read_config(run, committed=True)["policy"] == "walk"
 
+
+
+def _fake_train(calls):
+    def fake_train(argv):
+        calls.append(argv)
+        run = pathlib.Path(argv[argv.index("--out") + 1]) / argv[argv.index("--name") + 1]
+        step = int(argv[argv.index("--total-steps") + 1]) if "--total-steps" in argv else 90_000_000
+        ckpt = run / "checkpoints" / f"{step:012d}"
+        ckpt.mkdir(parents=True, exist_ok=True)
+        (ckpt / "progress.json").write_text(json.dumps({"step": step}))
+        return 0
+    return fake_train
+
+
+def test_a_seeded_replay_starts_from_its_own_sources_only(tmp_path):
+    """`train --recipe ... --seed 1`: into runs/replay_seed1/, every call with --seed 1, and the
+    artifact policy's warm start is the seed-1 walk at the recipe's step, never the committed
+    walk (an error naming the missing source until it exists)."""
+    calls = []
+    out = recipe_lib.replay_dir(tmp_path, 1)
+    assert out == tmp_path / "replay_seed1" and recipe_lib.replay_dir(tmp_path, None).name == "replay"
+    with pytest.raises(recipe_lib.RecipeError, match="walk_stand.*32,366,592"):
+        recipe_lib.replay(REPO / "models/policies/jumps_stand", out, {"train": _fake_train(calls)},
+                          say=lambda s: None, seed=1)
+    assert not calls
+    assert recipe_lib.replay(REPO / "models/policies/walk_stand", out, {"train": _fake_train(calls)},
+                             say=lambda s: None, seed=1) == 0
+    assert (out / "walk_stand" / "warm_start" / f"{32_366_592:012d}" / "progress.json").is_file()
+    calls.clear()
+    assert recipe_lib.replay(REPO / "models/policies/jumps_stand", out, {"train": _fake_train(calls)},
+                             say=lambda s: None, seed=1) == 0
+    assert all(c[c.index("--seed") + 1] == "1" for c in calls)
+    warm = calls[0][calls[0].index("--warm-start") + 1]
+    assert pathlib.Path(warm) == out / "walk_stand" / "warm_start" / f"{32_366_592:012d}"
+    with pytest.raises(recipe_lib.RecipeError, match="stairs_stand, gaps_stand"):
+        recipe_lib.replay(REPO / "models/policies/setup_gaps_stand", out,
+                          {"train": _fake_train(calls)}, say=lambda s: None, seed=1)
+    for r in ("stairs_stand", "gaps_stand"):
+        assert recipe_lib.replay(REPO / "models/policies" / r, out, {"train": _fake_train(calls)},
+                                 say=lambda s: None, seed=1) == 0
+    calls.clear()
+    assert recipe_lib.replay(REPO / "models/policies/setup_gaps_stand", out,
+                             {"train": _fake_train(calls)}, say=lambda s: None, seed=1) == 0
+    assert calls[0][calls[0].index("--suite-runs") + 1] == str(out)  # the seed-1 suite
+    with pytest.raises(recipe_lib.RecipeError, match="-1"):
+        recipe_lib.replay_dir(tmp_path, -1)
+
+
+def test_train_all_with_jobs_starts_each_recipe_once_its_source_is_there(tmp_path, monkeypatch):
+    """`replay_all(jobs=3)`: walk first and alone; the three artifact policies side by side once
+    the walk's warm-start copy exists, never more than `jobs` at a time, each with one mujoco
+    thread and --seed; the setup policy after gaps."""
+    import subprocess
+
+    events, live = [], set()
+    out = recipe_lib.replay_dir(tmp_path, 1)
+
+    class FakeProc:
+        def __init__(self, cmd, stdout, stderr, env):
+            self.run = pathlib.Path(cmd[cmd.index("--recipe") + 1]).name
+            assert env["BIPED_SWITCH_NTHREAD"] == "1" and cmd[cmd.index("--seed") + 1] == "1"
+            live.add(self.run)
+            events.append(("start", self.run, len(live)))
+            self.polls = 0
+            self.returncode = None
+
+        def poll(self):
+            self.polls += 1
+            if self.polls < 2:
+                return None
+            run = out / self.run
+            rec = recipe_lib.load(REPO / "models/policies" / self.run)
+            for s in recipe_lib.exports(self.run, [recipe_lib.load(d) for d in RUNS]):
+                (run / "warm_start" / f"{s:012d}").mkdir(parents=True, exist_ok=True)
+                (run / "warm_start" / f"{s:012d}" / "progress.json").write_text("{}")
+            (run / recipe_lib.DONE).write_text(json.dumps({"step": rec["final_step"]}))
+            live.discard(self.run)
+            events.append(("end", self.run, len(live)))
+            self.returncode = 0
+            return 0
+
+    monkeypatch.setattr(subprocess, "Popen", FakeProc)
+    dirs = [REPO / "models/policies" / n for n in ("setup_gaps_stand", "gaps_stand", "jumps_stand",
+                                                    "stairs_stand", "walk_stand")]
+    assert recipe_lib.replay_all(dirs, tmp_path, say=lambda s: None, seed=1, jobs=3,
+                                 poll_s=0, report_s=0) == 0
+    starts = [e[1] for e in events if e[0] == "start"]
+    assert starts[0] == "walk_stand" and starts[-1] == "setup_gaps_stand"
+    assert events[1] == ("end", "walk_stand", 0)  # nothing else ran before the walk was there
+    assert max(n for kind, _, n in events if kind == "start") == 3
+    ends = [e[1] for e in events if e[0] == "end"]
+    assert all(ends.index(r) < starts.index("setup_gaps_stand")
+               for r in ("jumps_stand", "stairs_stand", "gaps_stand"))  # its frozen suite
+
+
+def test_a_committed_seeded_replay_goes_on_where_it_stopped(tmp_path, monkeypatch):
+    """`train --recipe ... --seed 1 --commit` copies each replay's latest checkpoint, warm-start
+    copies and logs to models/replay_seed1/<run>/; a fresh clone's replay restores that copy and
+    goes on from its step, with the warm-start copy there for the artifact policies."""
+    monkeypatch.setattr(recipe_lib, "REPO", tmp_path / "repo")
+    calls = []
+    out = recipe_lib.replay_dir(tmp_path / "runs", 1)
+    fake = _fake_train(calls)
+
+    def stop_early(argv):  # the session ends after walk's fourth segment
+        if len(calls) == 4:
+            return 1
+        return fake(argv)
+
+    rec = recipe_lib.load(REPO / "models/policies/walk_stand")
+    assert recipe_lib.replay(REPO / "models/policies/walk_stand", out, {"train": stop_early},
+                             say=lambda s: None, seed=1) == 1
+    step = int(runs_lib.latest_checkpoint(out / "walk_stand").name)
+    (out / "walk_stand" / "train.log").write_text("log\n")
+    saved = recipe_lib.commit_replays([REPO / "models/policies/walk_stand"], tmp_path / "runs", 1)
+    assert saved == [tmp_path / "repo" / "models" / "replay_seed1" / "walk_stand"]
+    assert [c.name for c in (saved[0] / "checkpoints").iterdir()] == [f"{step:012d}"]
+    assert (saved[0] / "warm_start" / f"{32_366_592:012d}" / "progress.json").is_file()
+    fresh = recipe_lib.replay_dir(tmp_path / "clone_runs", 1)  # a fresh clone: no runs/
+    calls.clear()
+    said = []
+    assert recipe_lib.replay(REPO / "models/policies/walk_stand", fresh, {"train": fake},
+                             say=said.append, seed=1) == 0
+    assert any("going on from its committed copy" in s for s in said)
+    firsts = [int(c[c.index("--total-steps") + 1]) for c in calls if "--total-steps" in c]
+    assert all(t > step for t in firsts) and len(calls) == len(recipe_lib.segments(
+        rec, recipe_lib.exports("walk_stand", [recipe_lib.load(d) for d in RUNS]))) - 4

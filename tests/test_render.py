@@ -172,3 +172,15 @@ def test_a_table1_trial_replays_to_the_float(tmp_path):
     _, _, other = render.record(one, load_policy(ckpt, one)[0], seconds, reset_key=jax.random.PRNGKey(99),
                                 batch=batch)
     assert other["distance_m"] != dist[2]  # another initial state: another trajectory
+
+
+@pytest.mark.parametrize("argv, want", [
+    (["--scripted", "--track-seed", "-5"], "--track-seed: must be >= 0, got '-5'"),
+    (["--scripted", "--seed", "-1"], "--seed: must be >= 0, got '-1'"),
+    (["--scripted", "--seconds", "0"], "--seconds: must be > 0, got '0'")])
+def test_cli_refuses_bad_numbers_before_any_work(capsys, argv, want):
+    """An argparse error naming the flag and value, not a traceback from numpy's seeding."""
+    with pytest.raises(SystemExit) as e:
+        render_cli.main(argv)
+    assert e.value.code == 2
+    assert want in capsys.readouterr().err

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from biped_switch import kinds
 from biped_switch.simulation import model as model_lib
 from biped_switch.simulation import terrain
 from biped_switch import terrain as terrain_cli
@@ -20,7 +21,13 @@ from helpers import box_intervals_x, env_boxes
 
 SEEDS = range(200)
 ARTS = terrain.ARTIFACT_KINDS
+ALL_ARTS = kinds.ALL_ARTIFACT_KINDS  # the paper's three and `stones` (kinds.py: paper=False)
 TOL = 1e-9
+STONE = dict(length=0.30, top=0.15, hole=0.45)  # config.py's stone sizes at difficulty 1, by hand
+
+
+def _lays(kind, art):
+    return art in kinds.KIND[kind].artifacts
 
 
 def _tracks(kind, difficulty=1.0, seeds=SEEDS):
@@ -69,8 +76,10 @@ def test_track_tiles_x_without_overlap(all_tracks, kind):
         space = iv[1:, 0] - iv[:-1, 1]
         assert np.all(space > -1e-9), "boxes overlap"
         holes = space[space > 1e-9]
-        np.testing.assert_allclose(holes, 0.7, atol=1e-9)  # only gap holes, 0.7 m at difficulty 1
-        if kind != "gaps" and kind != "mixed":
+        # only gap holes, 0.7 m, and the holes between stones, 0.45 m, at difficulty 1
+        allowed = [h for a, h in (("gaps", 0.7), ("stones", STONE["hole"])) if _lays(kind, a)]
+        assert all(np.isclose(h, allowed, atol=1e-9).any() for h in holes), holes
+        if not allowed:
             assert holes.size == 0
         assert iv[-1, 1] == pytest.approx(t.end_x_m)
 
@@ -81,12 +90,16 @@ def test_flat_and_stair_run_lengths(all_tracks, kind):
         seg = t.segments
         solid = seg[:, terrain.SOLID] > 0.5
         block = solid & np.isclose(seg[:, terrain.LEN0], 0.16) & np.isclose(seg[:, terrain.TOP_D], 0.3)
-        runs = seg[solid & ~block]
+        stone = (solid & np.isclose(seg[:, terrain.LEN0], STONE["length"])
+                 & np.isclose(seg[:, terrain.TOP_D], STONE["top"]))
+        assert _lays(kind, "stones") or not stone.any()
+        runs = seg[solid & ~block & ~stone]
         assert np.all((runs[:, terrain.LEN0] >= 0.36) & (runs[:, terrain.LEN0] <= 0.44))
         np.testing.assert_array_equal(runs[:, terrain.LEN_D], 0.0)
         # the same on the boxes: every box is either a 0.16 m jump block or 0.36..0.44 m long
         lengths = _lengths(t.boxes)
         ok = ((lengths >= 0.36 - TOL) & (lengths <= 0.44 + TOL)) | np.isclose(lengths, 0.16)
+        ok |= _lays(kind, "stones") & np.isclose(lengths, STONE["length"])
         assert ok.all(), lengths[~ok]
 
 
@@ -130,21 +143,21 @@ def test_flat_runup_before_every_artifact(all_tracks, kind):
             assert t.artifacts[0][1] >= 1.0 + 0.9
 
 
-@pytest.mark.parametrize("kind", ["mixed"])
+@pytest.mark.parametrize("kind", ["mixed", "mixed4"])
 def test_mixed_never_repeats_a_kind(all_tracks, kind):
     seen = set()
     for t in all_tracks[kind]:
         names = [a[0] for a in t.artifacts]
         assert all(a != b for a, b in zip(names, names[1:])), names
         seen.update(names)
-    assert seen == set(ARTS)
+    assert seen == set(ARTS) | ({"stones"} if kind == "mixed4" else set())
 
 
-@pytest.mark.parametrize("kind", ARTS)
+@pytest.mark.parametrize("kind", ALL_ARTS)
 def test_single_kind_tracks_contain_only_their_kind(all_tracks, kind):
     for t in all_tracks[kind]:
         assert {a[0] for a in t.artifacts} == {kind}
-        np.testing.assert_array_equal(t.artifact_codes, ARTS.index(kind))
+        np.testing.assert_array_equal(t.artifact_codes, ALL_ARTS.index(kind))
 
 
 def test_stairs_at_difficulty_1(all_tracks):
@@ -201,6 +214,55 @@ def test_gaps_at_difficulty_1(all_tracks):
             holes = holes[holes > 1e-9]
             assert len(holes) == n_holes
             np.testing.assert_allclose(holes, 0.7, atol=1e-9)
+
+
+def test_stones_at_difficulty_1(all_tracks):
+    """A hole, then a raised stone, alternating: stones 0.3 m long with tops 0.15 m up, holes
+    0.45 m, nothing else inside the artifact."""
+    for t in all_tracks["stones"] + all_tracks["mixed4"]:
+        iv_all = box_intervals_x(t.boxes)
+        for (name, a0, a1), (s0, s1) in zip(t.artifacts, t.artifact_segments):
+            if name != "stones":
+                continue
+            n = s1 - s0 + 1
+            n_holes, n_stones = (n + 1) // 2, n // 2
+            b = _boxes_in(t, a0, a1)
+            assert len(b) == n_stones >= 2
+            np.testing.assert_allclose(_tops(b), STONE["top"])
+            np.testing.assert_allclose(_lengths(b), STONE["length"])
+            assert b[0, 0] - b[0, 3] == pytest.approx(a0 + STONE["hole"])
+            inside = iv_all[(iv_all[:, 1] > a0 + 1e-9) & (iv_all[:, 0] < a1 - 1e-9)]
+            holes = np.concatenate([inside[:, 0], [a1]]) - np.concatenate([[a0], inside[:, 1]])
+            holes = holes[holes > 1e-9]
+            assert len(holes) == n_holes
+            np.testing.assert_allclose(holes, STONE["hole"], atol=1e-9)
+
+
+@pytest.mark.parametrize("d", [0.0, 0.3, 0.75])
+def test_stones_scale_with_difficulty(d):
+    """The stones' tops and the holes between them scale by d; stone lengths and the layout's
+    draws stay, so each artifact is 0.45 (1 - d) m shorter per hole."""
+    for s in range(20):
+        t1, td = terrain.generate_track(s, "stones", 1.0), terrain.generate_track(s, "stones", d)
+        b1, bd = t1.boxes, td.boxes
+        assert b1.shape == bd.shape
+        np.testing.assert_allclose(_tops(bd), d * _tops(b1), atol=1e-12)
+        np.testing.assert_allclose(_lengths(bd), _lengths(b1), atol=1e-12)
+        assert np.unique(np.round(_tops(bd), 12)).tolist() == sorted({0.0, round(STONE["top"] * d, 12)})
+        sp = box_intervals_x(bd)
+        sp = sp[1:, 0] - sp[:-1, 1]
+        np.testing.assert_allclose(sp[sp > 1e-9], STONE["hole"] * d, atol=1e-9)
+        for (k1, a0, a1), (kd, h0, h1), (s0, s1) in zip(t1.artifacts, td.artifacts,
+                                                         t1.artifact_segments):
+            assert k1 == kd == "stones"
+            assert h1 - h0 == pytest.approx(a1 - a0 - STONE["hole"] * (1 - d) * ((s1 - s0 + 2) // 2))
+
+
+def test_stone_sizes_are_the_configs():
+    """The test's hand-written sizes are config.py's (a changed size must change both)."""
+    cfg = default_terrain_config()
+    assert (cfg.stone_length_m, cfg.stone_height_m, cfg.stone_hole_m) == tuple(STONE.values())
+    assert cfg.stone_height_m < cfg.step_height_m and cfg.stone_hole_m < cfg.gap_length_m
 
 
 # ----------------------------------------------------------------------------- difficulty
@@ -365,7 +427,8 @@ def test_cli_png(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, word", [(["--kind", "hills"], "hills"),
-                                         (["--difficulty", "1.5"], "1.5")])
+                                         (["--difficulty", "1.5"], "1.5"),
+                                         (["--seed", "-5"], "--seed: must be >= 0, got '-5'")])
 def test_cli_errors(capsys, argv, word):
     with pytest.raises(SystemExit) as e:
         terrain_cli.main(argv + ["--json"])

@@ -436,3 +436,99 @@ def test_run_config_reads_back_what_the_run_was_made_with(tmp_path):
     assert default_train_config().n_tracks == 256 and default_train_config().eval.n_envs == 256
     assert cfg.curriculum.max_push_N == 100.0 and cfg.curriculum.push_magnitude == "uniform"
     assert "no_longer_a_key" not in cfg.curriculum
+
+
+# ----------------------------------------------------------------------------- the PPO loss
+def _loss_by_hand(w_pi, w_vf, log_std, mb, eps, c_v, c_e):
+    """ppo_loss in numpy with linear networks: the clipped surrogate over the learner's
+    non-truncated steps, advantages standardised over the learner's steps."""
+    x = mb["x"]
+    mean, v = x @ w_pi, (x @ w_vf)[:, 0]
+    std = np.exp(log_std)
+    logp = np.sum(-0.5 * ((mb["action"] - mean) / std) ** 2 - log_std - 0.5 * np.log(2 * np.pi), 1)
+    ratio = np.exp(logp - mb["logp"])
+    lm = mb["learner"]
+    a = mb["adv"]
+    am = (a * lm).sum() / lm.sum()
+    a = (a - am) / (np.sqrt((lm * (a - am) ** 2).sum() / lm.sum()) + 1e-8)
+    surr = np.minimum(ratio * a, np.clip(ratio, 1 - eps, 1 + eps) * a)
+    w = mb["mask"] * lm
+    pg = -(surr * w).sum() / w.sum()
+    v_loss = 0.5 * np.mean((v - mb["target"]) ** 2)
+    ent = np.sum(log_std + 0.5 * np.log(2 * np.pi * np.e))
+    return pg + c_v * v_loss - c_e * ent, pg, v_loss
+
+
+def test_ppo_loss_against_a_hand_computation():
+    """`ppo_loss` equals the formula computed by hand, on a minibatch where the learner mask, the
+    truncation mask and the clipping all bite: dropping either mask, or flipping the surrogate's
+    sign, changes the policy loss by far more than the tolerance."""
+    rng = np.random.default_rng(0)
+    n, i, a_dim = 16, 5, 3
+    w_pi, w_vf = rng.normal(size=(i, a_dim)) * 0.3, rng.normal(size=(i, 1))
+    log_std = np.log(np.array([0.3, 0.5, 0.8]))
+    x = rng.normal(size=(n, i))
+    mb = {"x": x, "action": x @ w_pi + rng.normal(size=(n, a_dim)) * 0.4,
+          "logp": rng.normal(-1.0, 1.5, n), "adv": rng.normal(size=n), "target": rng.normal(size=n),
+          "mask": (np.arange(n) % 5 != 0).astype(float), "learner": (np.arange(n) % 3 != 0).astype(float)}
+    hp = ppo.LossParams(0.2, 0.5, 0.01)
+    params = {"policy": jnp.asarray(w_pi, jnp.float32), "value": jnp.asarray(w_vf, jnp.float32),
+              "log_std": jnp.asarray(log_std, jnp.float32)}
+    total, info = ppo.ppo_loss(params, jax.tree.map(lambda v: jnp.asarray(v, jnp.float32), mb),
+                               lambda p, z: z @ p, lambda p, z: z @ p, hp)
+    ref_total, ref_pg, ref_v = _loss_by_hand(w_pi, w_vf, log_std, mb, 0.2, 0.5, 0.01)
+    np.testing.assert_allclose(float(info["loss/policy"]), ref_pg, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(float(info["loss/value"]), ref_v, rtol=1e-4)
+    np.testing.assert_allclose(float(total), ref_total, rtol=1e-4, atol=1e-5)
+    assert 0.0 < float(info["loss/clip_frac"]) < 1.0  # the clip is active on some steps
+    no_mask = dict(mb, mask=np.ones(n))
+    no_learner = dict(mb, learner=np.ones(n))
+    for wrong in (no_mask, no_learner):
+        assert abs(_loss_by_hand(w_pi, w_vf, log_std, wrong, 0.2, 0.5, 0.01)[1] - ref_pg) > 1e-2
+    assert abs(ref_pg) > 1e-2  # a flipped sign would show
+
+
+def test_pooled_network_input_is_the_same_function_of_the_observation():
+    """The trainer's networks on `policy_input` (heightmap pooled at collection, 1 x 1 pool in
+    the network) give the policy's actions and values on the full observation, with the same
+    parameters: the rollout can store 203 columns instead of 2,453."""
+    cfg = default_train_config("cpu")
+    env = env_lib.make_env("mixed", n_tracks=2, phase_obs=True)
+    obs_size = env.policy_observation_size
+    rng = np.random.default_rng(1)
+    obs = rng.normal(size=(6, obs_size)).astype(np.float32)
+    lay = env.obs_layout
+    obs[:, lay.heightmap] = rng.uniform(size=(6, lay.hm_size))
+    pi_full, vf_full = ppo.make_networks(cfg.network, env)
+    pi_pool, vf_pool = ppo.make_networks(cfg.network, env, pooled_input=True)
+    params = {"policy": pi_full.init(jax.random.PRNGKey(0), jnp.zeros((1, obs_size))),
+              "value": vf_full.init(jax.random.PRNGKey(1), jnp.zeros((1, obs_size)))}
+    norm = ppo.Normalizer(jnp.asarray(rng.normal(size=obs_size), jnp.float32),
+                          jnp.asarray(rng.uniform(0.5, 2.0, obs_size), jnp.float32), jnp.asarray(10.0))
+    mask = jnp.asarray(ppo.norm_mask(env))
+    full_in = ppo.normalize(norm, jnp.asarray(obs), mask)
+    policy_input, cols, in_mask = ppo.policy_input_fn(cfg.network, env)
+    assert len(cols) == lay.state_size + 150 + lay.n_phase
+    x = policy_input(jnp.asarray(obs))
+    xn = ppo.normalize(ppo.Normalizer(norm.mean[cols], norm.var[cols], norm.count), x,
+                       jnp.asarray(in_mask))
+    np.testing.assert_allclose(pi_pool.apply(params["policy"], xn),
+                               pi_full.apply(params["policy"], full_in), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(vf_pool.apply(params["value"], xn),
+                               vf_full.apply(params["value"], full_in), rtol=1e-5, atol=1e-6)
+
+
+def test_normalizer_update_of_some_columns_leaves_the_others():
+    rng = np.random.default_rng(2)
+    norm = ppo.Normalizer(jnp.asarray(rng.normal(size=6), jnp.float32),
+                          jnp.asarray(rng.uniform(1, 2, 6), jnp.float32), jnp.asarray(5.0))
+    cols, mask = np.array([0, 2, 2, 5]), np.array([1, 1, 0, 1], np.float32)
+    batch = jnp.asarray(rng.normal(size=(9, 4)), jnp.float32)
+    out = ppo.update_normalizer_cols(norm, batch, cols, mask)
+    b = np.asarray(batch)
+    full = ppo.update_normalizer(norm, jnp.asarray(b[:, [0, 0, 1, 0, 0, 3]]))
+    mean, var, old = (np.asarray(a) for a in (out.mean, out.var, norm.mean))
+    np.testing.assert_allclose(mean[[0, 2, 5]], np.asarray(full.mean)[[0, 2, 5]], rtol=1e-6)
+    np.testing.assert_allclose(var[[0, 2, 5]], np.asarray(full.var)[[0, 2, 5]], rtol=1e-6)
+    np.testing.assert_array_equal(mean[[1, 3, 4]], old[[1, 3, 4]])
+    assert float(out.count) == 14.0

@@ -201,14 +201,11 @@ def test_tune_tries_each_margin_then_run_lengths_at_the_best(tmp_path, monkeypat
     made = []
 
     class FakeSetup:
-        def __init__(self, init, trials, batch, horizon_s, runs, stand_in, est_dir, lookup_dir,
-                     need_est, need_lookup, track_seed=None, when_dir=None, **kw):
-            made.append((init, trials, track_seed, when_dir))
-            self.variants = {}
+        def __init__(self, methods, cfg):
+            made.append((tuple(methods), cfg.trials, cfg.track_seed, cfg.when_dir))
 
-        def evaluate(self, method, trials, seed, print_fn=None):
-            v = self.variants[method]
-            p = 0.8 - abs(v["threshold"] + 0.02) - 0.05 * abs(v["persist_steps"] - 2)
+        def evaluate(self, method, trials, seed, print_fn=None, margin=None, persist_steps=None):
+            p = 0.8 - abs(margin + 0.02) - 0.05 * abs(persist_steps - 2)
             succ = np.arange(trials) < round(p * trials)
             return {"success": succ, "fell": ~succ, "progress_frac": succ * 1.0,
                     "fail_kind": np.where(succ, -1, 1)}
@@ -217,7 +214,7 @@ def test_tune_tries_each_margin_then_run_lengths_at_the_best(tmp_path, monkeypat
     out = tmp_path / "res"
     assert when_cli.main(["--tune", "--trials", "100", "--persist", "2", "3", "--later", "model",
                           "--results", str(out), "--out", "models/switch_when"]) == 0
-    assert made == [("stand", 100, TUNE_TRACK_SEED, "models/switch_when")]
+    assert made == [(("learned",), 100, TUNE_TRACK_SEED, "models/switch_when")]
     doc = __import__("json").loads((out / "tuning.json").read_text())
     tried = [(r["margin"], r["persist_steps"]) for r in doc["rows"]]
     margins = list(default_when_config().margin_choices)

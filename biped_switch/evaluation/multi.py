@@ -17,6 +17,7 @@ from __future__ import annotations
 import pathlib
 import time
 import warnings
+from dataclasses import dataclass
 from typing import Sequence
 
 import jax
@@ -28,7 +29,6 @@ from biped_switch.simulation import env as env_lib
 from biped_switch.switching import estimator as est_lib
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
-from biped_switch.switching import labels
 from biped_switch.switching import detector as det_lib
 from biped_switch.switching import lookup
 from biped_switch.switching import rules as sw
@@ -40,30 +40,32 @@ from biped_switch.paths import WHEN_DIR
 from biped_switch.simulation.rollout import over_devices
 from biped_switch.stats import episode_table, join_rows
 
-from biped_switch.names import (BASELINES, CONTEXT_METHODS, LEARNED_METHODS,  # noqa: E402,F401
-                                MULTI_METHODS, RANDOM_INIT_METHODS, SETUP_METHODS, SWITCH_METHODS)
+from biped_switch.methods import Method, method as method_record
+from biped_switch.names import BASELINES, MULTI_METHODS
 from biped_switch.switching import when as when_lib
-PERSIST_STEPS = labels.N_WINDOW
 
 
-def switch_rule(method: str) -> str:
-    """The switching.METHODS rule a Table II switching method applies."""
-    if method.startswith("estimator") or method in LEARNED_METHODS:
-        return "estimator"  # a model's output against a threshold
-    return base_method(method).removesuffix("_context")
+@dataclass(frozen=True)
+class MultiConfig:
+    """What every row of one `evaluate multi` shares: the trials, where the trained parts are, the
+    tracks and the backend. Trial i runs on track `track_seed` + i; `detector_dir`: a learned
+    terrain detector in place of the oracle; `when_cfg`: the learned rule's (None: config's)."""
 
-
-def base_method(method: str) -> str:
-    """The Table II method a setup method (SETUP_METHODS) adds setup policies to."""
-    return method.removesuffix("_setup") if method in SETUP_METHODS else method
-
-
-def setup_key(method: str) -> str:
-    """The MultiSetup (one compiled rollout) of `evaluate_multi` that runs a switching method:
-    its init, with setup policies or not, with the learned rule's model or not."""
-    init = "random" if method in RANDOM_INIT_METHODS else "stand"
-    return (init + ("+setup" if method in SETUP_METHODS else "")
-            + ("+learned" if method in LEARNED_METHODS else ""))
+    trials: int
+    batch: int
+    horizon_s: float = 60.0
+    runs: str = "runs"
+    stand_in: str | None = None
+    est_dir: str = "models/estimators"
+    lookup_dir: str = "experiments/results/lookup"
+    dqn_dir: str | None = None
+    guide_scale: float = 0.0
+    n_artifacts: int = 7
+    backend: str = "auto"
+    track_seed: int = MULTI_TRACK_SEED
+    detector_dir: str | None = None
+    when_dir: str = WHEN_DIR
+    when_cfg: object = None
 
 
 def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
@@ -86,63 +88,60 @@ def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
                       stand_in: str | None = None, when_dir=WHEN_DIR) -> tuple[list, list]:
     """(methods whose trained parts exist, ["method: what is missing", ...])."""
-    runs, ok, skipped = pathlib.Path(runs), [], []
+    ok, skipped = [], []
     for m in methods:
-        init = "random" if m in RANDOM_INIT_METHODS else "stand"
-        first = stand_in or "walk"
-        if m == "end_to_end":
-            if runs_lib.find_policy("mixed", "stand", runs) is None:
-                skipped.append(f"{m}: no end-to-end policy (python -m biped_switch.train --policy mixed)")
-                continue
-        else:  # the suite: all four policies, or with a stand-in, walk or the stand-in
-            missing = [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, init, runs) is None]
-            if stand_in is not None and (runs_lib.find_policy("walk", init, runs) is not None
-                                         or runs_lib.find_policy(first, init, runs) is not None):
-                missing = []
-            if missing:
-                skipped.append(f"{m}: no {init}-init {', '.join(missing)} policy under {runs}/ or "
-                               f"models/policies/ (python -m biped_switch.train --policy P "
-                               f"--init {init})")
-                continue
-        if m in SETUP_METHODS and not find_setup_policies(init, runs):
-            skipped.append(f"{m}: no {init}-init setup policy under {runs}/ or models/policies/ "
-                           f"(python -m biped_switch.train --policy setup_gaps --init {init})")
-            continue
-        if m in LEARNED_METHODS and not (pathlib.Path(when_dir) / init / "meta.json").exists():
-            skipped.append(f"{m}: no learned when rule in {when_dir}/{init} (python -m "
-                           f"biped_switch.when --init {init})")
-            continue
-        if m.startswith("estimator_context"):
-            if est_lib.context_estimator_paths(init, est_dir) is None:
-                skipped.append(f"{m}: no {init}_context estimator in {est_dir} (python -m "
-                               f"biped_switch.estimator --init {init} --context), or a target has "
-                               f"no estimator at all")
-                continue
-        elif m.startswith("estimator") and not all(
-                (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
-            skipped.append(f"{m}: no {init}-init estimators in {est_dir} (make train-estimators)")
-            continue
-        if base_method(m) == "lookup_context":
-            missing = lookup.context_lookup_missing("stand", lookup_dir)
-            if missing is None or missing:
-                skipped.append(f"{m}: no context lookup table covering every target in {lookup_dir}"
-                               f" (python -m biped_switch.sweep --init stand --context)")
-                continue
-        if m == "lookup":
-            missing = lookup.lookup_missing("stand", lookup_dir)
-            if missing is None:
-                skipped.append(f"{m}: no lookup table in {lookup_dir} (python -m biped_switch.sweep)")
-                continue
-            if missing:  # swept one target at a time, across sessions
-                skipped.append(f"{m}: the lookup table in {lookup_dir} has no {', '.join(missing)} "
-                               f"(python -m biped_switch.sweep --targets {' '.join(missing)})")
-                continue
-        if m == "dqn" and runs_lib.find_dqn(runs, "stand", dqn_dir) is None:
-            skipped.append(f"{m}: no DQN checkpoint in {dqn_dir or f'{runs}/dqn_stand'} or "
-                           f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
-            continue
-        ok.append(m)
+        why = _missing(method_record(m), pathlib.Path(runs), est_dir, lookup_dir, dqn_dir,
+                       stand_in, when_dir)
+        if why:
+            skipped.append(f"{m}: {why}")
+        else:
+            ok.append(m)
     return ok, skipped
+
+
+def _missing(rec: Method, runs: pathlib.Path, est_dir, lookup_dir, dqn_dir, stand_in,
+             when_dir) -> str | None:
+    """The first part of `rec`'s row that is not trained, with the command that makes it (None:
+    all there), in the order a user would make them."""
+    init = rec.suite
+    if rec.name == "end_to_end":
+        if runs_lib.find_policy("mixed", "stand", runs) is None:
+            return "no end-to-end policy (python -m biped_switch.train --policy mixed)"
+    else:  # the suite: all four policies, or with a stand-in, walk or the stand-in
+        missing = [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, init, runs) is None]
+        if stand_in is not None and (runs_lib.find_policy("walk", init, runs) is not None
+                                     or runs_lib.find_policy(stand_in, init, runs) is not None):
+            missing = []
+        if missing:
+            return (f"no {init}-init {', '.join(missing)} policy under {runs}/ or models/policies/ "
+                    f"(python -m biped_switch.train --policy P --init {init})")
+    if rec.setup and not find_setup_policies(init, runs):
+        return (f"no {init}-init setup policy under {runs}/ or models/policies/ "
+                f"(python -m biped_switch.train --policy setup_gaps --init {init})")
+    if rec.when and not (pathlib.Path(when_dir) / init / "meta.json").exists():
+        return f"no learned when rule in {when_dir}/{init} (python -m biped_switch.when --init {init})"
+    if rec.estimators == "context" and est_lib.context_estimator_paths(init, est_dir) is None:
+        return (f"no {init}_context estimator in {est_dir} (python -m biped_switch.estimator "
+                f"--init {init} --context), or a target has no estimator at all")
+    if rec.estimators == "sweep" and not all(
+            (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
+        return f"no {init}-init estimators in {est_dir} (make train-estimators)"
+    if rec.lookup == "context":
+        missing = lookup.context_lookup_missing("stand", lookup_dir)
+        if missing is None or missing:
+            return (f"no context lookup table covering every target in {lookup_dir} (python -m "
+                    f"biped_switch.sweep --init stand --context)")
+    if rec.lookup == "sweep":
+        missing = lookup.lookup_missing("stand", lookup_dir)
+        if missing is None:
+            return f"no lookup table in {lookup_dir} (python -m biped_switch.sweep)"
+        if missing:  # swept one target at a time, across sessions
+            return (f"the lookup table in {lookup_dir} has no {', '.join(missing)} (python -m "
+                    f"biped_switch.sweep --targets {' '.join(missing)})")
+    if rec.name == "dqn" and runs_lib.find_dqn(runs, "stand", dqn_dir) is None:
+        return (f"no DQN checkpoint in {dqn_dir or f'{runs}/dqn_stand'} or "
+                f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
+    return None
 
 
 def _run_batches(run, trials: int, batch: int, seed: int, print_fn=None, label: str = "") -> dict:
@@ -191,69 +190,31 @@ def load_detector(detector_dir, env):
 
 
 class MultiSetup:
-    """Env, policy suite, estimators and lookup table of one init mode, and its compiled rollout."""
+    """Env, policy suite and the switching parts (estimators, lookup tables, the learned rule's
+    model) of the rows `methods` (records sharing one `Method.rollout`), and their compiled
+    rollout."""
 
-    def __init__(self, init: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
-                 est_dir, lookup_dir, need_estimators: bool, need_lookup: bool,
-                 guide_scale: float = 0.0, n_artifacts: int = 7, backend: str = "auto",
-                 need_context: Sequence[str] = (), track_seed: int = MULTI_TRACK_SEED,
-                 detector_dir=None, with_setup: bool = False, when_dir=None, when_cfg=None):
-        self.init = init
+    def __init__(self, methods: Sequence[Method | str], cfg: MultiConfig):
+        recs = [method_record(m) if isinstance(m, str) else m for m in methods]
+        if not recs or recs[0].baseline or len({r.rollout for r in recs}) != 1:
+            raise ValueError(f"one MultiSetup runs switching methods of one rollout, got "
+                             f"{[r.name for r in recs]}")
+        first, runs = recs[0], cfg.runs
+        self.init = init = first.suite
         # the setup methods' suite: the four policies, then every trained setup policy
-        setups = find_setup_policies(init, runs) if with_setup else {}
-        if with_setup and not setups:
+        setups = find_setup_policies(init, runs) if first.setup else {}
+        if first.setup and not setups:
             raise FileNotFoundError(f"no {init}-init setup policy under {runs}/ or models/policies/")
         names = pol.POLICY_NAMES + tuple(setups)
-        self.env = multi_env(init, trials, n_artifacts, track_seed, backend=backend,
-                             **pol.suite_env_overrides(init, runs, stand_in=stand_in, names=names))
-        det_apply, self.det_params, self.detector = load_detector(detector_dir, self.env)
-        self.suite = pol.load_suite(init, self.env, runs, stand_in=stand_in, names=names)
+        self.env = multi_env(init, cfg.trials, cfg.n_artifacts, cfg.track_seed, backend=cfg.backend,
+                             **pol.suite_env_overrides(init, runs, stand_in=cfg.stand_in, names=names))
+        det_apply, self.det_params, self.detector = load_detector(cfg.detector_dir, self.env)
+        self.suite = pol.load_suite(init, self.env, runs, stand_in=cfg.stand_in, names=names)
         self.policy_names = names
         self.walk_on = {k: (tuple(v["sources"]), float(v["handover_m"]))
-                        for k, v in SETUP_WALK_ON.items()} if with_setup else {}
+                        for k, v in SETUP_WALK_ON.items()} if first.setup else {}
         self.setup = sw.setup_slots(names, setups) if setups else None
-        self.est_apply, self.est_params, self.est_meta = None, None, None
-        if need_estimators:
-            self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
-            self.est_apply = est_lib.predict
-        self.lookup_m = lookup.load_lookup(init, lookup_dir) if need_lookup else None
-        # the context methods' estimators and lookup: same shapes, so the same compiled rollout
-        self.variants, self.parts = {}, {}
-        if need_estimators:
-            self.parts["estimator"] = [f"{k}: {pathlib.Path(est_dir) / f'{init}_{k}'}"
-                                       for k in terrain.ARTIFACT_KINDS]
-        if need_lookup:
-            self.parts["lookup"] = [f"{k}: {pathlib.Path(lookup_dir) / f'lookup_{init}.json'}"
-                                    for k in terrain.ARTIFACT_KINDS]
-        est_ctx = [m for m in need_context if m.startswith("estimator_context")]
-        if est_ctx:
-            paths = est_lib.context_estimator_paths(init, est_dir)
-            if paths is None:
-                raise FileNotFoundError(f"no {init}_context estimators in {est_dir}")
-            params, _ = est_lib.load_estimator_paths(paths)
-            self.est_apply = est_lib.predict
-            if self.est_params is None:  # a compiled rollout needs some set for the other methods
-                self.est_params = params
-            for m in est_ctx:
-                persist = PERSIST_STEPS if m.endswith("_persist") else 1
-                self.variants[m] = {"est_params": params, "persist_steps": persist}
-                self.parts[m] = ([f"{k}: {p}" for k, p in zip(terrain.ARTIFACT_KINDS, paths)]
-                                 + [f"estimate >= threshold on {persist} control step(s) in a row"])
-        if when_dir is not None:  # the learned rule: its own model, read with the context
-            path = pathlib.Path(when_dir) / init
-            self.est_params, self.when_meta = est_lib.load_estimator(path)
-            wcfg = when_cfg or default_when_config()
-            self.est_apply = when_lib.rule_fn(self.env, wcfg)
-            margin, persist = float(wcfg.margin), int(wcfg.persist_steps)
-            for m in LEARNED_METHODS:  # each init's learned row reads its own model
-                self.variants[m] = {"threshold": margin, "persist_steps": persist}
-                self.parts[m] = [f"model: {path}",
-                                 f"switch once P(now) >= best later P ({wcfg.later_from}) + "
-                                 f"{margin:g} on {persist} control step(s) in a row"]
-        if "lookup_context" in need_context:
-            m, used = lookup.load_context_lookup(init, lookup_dir)
-            self.variants["lookup_context"] = {"lookup_m": m}
-            self.parts["lookup_context"] = used
+        self._load_parts(recs, cfg)
         for name, (target, sources, handover_m) in setups.items():
             self.parts.setdefault("setup", []).append(
                 f"{name}: {sources} -> {target}, hand-over at {handover_m:g} m: "
@@ -261,9 +222,10 @@ class MultiSetup:
         for target, (sources, handover_m) in self.walk_on.items():
             self.parts.setdefault("setup", []).append(
                 f"walk on: {sources} -> {target}, the source acts to {handover_m:g} m")
-        self.horizon = int(round(horizon_s / self.env.dt))
+        self.horizon = int(round(cfg.horizon_s / self.env.dt))
 
         env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon
+        guide_scale = cfg.guide_scale
 
         def one(suite_params, est_params, det_params, rules, rng, ids):
             return sw.multi_rollout(env, apply, suite_params, est_apply, est_params, rules, rng,
@@ -272,26 +234,85 @@ class MultiSetup:
 
         self.det_apply = det_apply
         self.run = over_devices(one, n_shared=4)
-        self.batch = batch
+        self.batch = min(cfg.batch, cfg.trials)
         self.guide_scale = guide_scale
 
-    def rules_for(self, method: str):
-        """(switching rules, estimator params) of Table II method `method` (a switching.METHODS
-        rule, or a context variant with its own estimators, lookup or persistence)."""
-        var = self.variants.get(base_method(method), {})
-        lookup_m, setup = var.get("lookup_m", self.lookup_m), None
-        if method in SETUP_METHODS:
+    def _load_parts(self, recs: list[Method], cfg: MultiConfig) -> None:
+        """The estimators, lookup tables and learned rule the rows `recs` read; the context
+        parts have the plain ones' shapes, so the rows share one compiled rollout. `parts`: what
+        each row switches with, for its table row."""
+        init, est_dir, lookup_dir = self.init, cfg.est_dir, cfg.lookup_dir
+        self.est_apply, self.est_params, self.est_meta, self.context_est_params = (None,) * 4
+        self.lookup_m, self.context_lookup_m, self.when_cfg, self.parts = None, None, None, {}
+        if any(r.estimators == "sweep" for r in recs):
+            self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
+            self.est_apply = est_lib.predict
+            self.parts["estimator"] = [f"{k}: {pathlib.Path(est_dir) / f'{init}_{k}'}"
+                                       for k in terrain.ARTIFACT_KINDS]
+        if any(r.lookup == "sweep" for r in recs):
+            self.lookup_m = lookup.load_lookup(init, lookup_dir)
+            self.parts["lookup"] = [f"{k}: {pathlib.Path(lookup_dir) / f'lookup_{init}.json'}"
+                                    for k in terrain.ARTIFACT_KINDS]
+        est_ctx = [r for r in recs if r.estimators == "context"]
+        if est_ctx:
+            paths = est_lib.context_estimator_paths(init, est_dir)
+            if paths is None:
+                raise FileNotFoundError(f"no {init}_context estimators in {est_dir}")
+            self.context_est_params, _ = est_lib.load_estimator_paths(paths)
+            self.est_apply = est_lib.predict
+            if self.est_params is None:  # a compiled rollout needs some set for the other methods
+                self.est_params = self.context_est_params
+            for r in est_ctx:
+                self.parts[r.name] = ([f"{k}: {p}" for k, p in zip(terrain.ARTIFACT_KINDS, paths)]
+                                      + [f"estimate >= threshold on {r.persist_steps} control "
+                                         f"step(s) in a row"])
+        if recs[0].when:  # the learned rule: its own model, read with the context
+            path = pathlib.Path(cfg.when_dir) / init
+            self.est_params, self.when_meta = est_lib.load_estimator(path)
+            self.when_cfg = wcfg = cfg.when_cfg or default_when_config()
+            self.est_apply = when_lib.rule_fn(self.env, wcfg)
+            for r in recs:
+                self.parts[r.setup_of or r.name] = [
+                    f"model: {path}", f"switch once P(now) >= best later P ({wcfg.later_from}) + "
+                    f"{float(wcfg.margin):g} on {int(wcfg.persist_steps)} control step(s) in a row"]
+        if any(r.lookup == "context" for r in recs):
+            self.context_lookup_m, used = lookup.load_context_lookup(init, lookup_dir)
+            for r in recs:
+                if r.lookup == "context":
+                    self.parts[r.setup_of or r.name] = used
+
+    def parts_for(self, method: Method | str) -> list[str]:
+        """What row `method` switches with (its estimators, lookup file or model per target, and
+        its setup policies), for its table row."""
+        rec = method_record(method) if isinstance(method, str) else method
+        plain = "estimator" if rec.estimators == "sweep" else "lookup" if rec.lookup == "sweep" else ""
+        parts = list(self.parts.get(rec.setup_of or rec.name, self.parts.get(plain, [])))
+        return parts + (self.parts["setup"] if rec.setup else [])
+
+    def rules_for(self, method: Method | str, margin: float | None = None,
+                  persist_steps: int | None = None):
+        """(switching rules, estimator params) of Table II row `method`, from its record; the
+        learned rule's `margin` and `persist_steps` default to its config's (`when --tune` tries
+        others in the same compiled rollout)."""
+        rec = method_record(method) if isinstance(method, str) else method
+        lookup_m = self.context_lookup_m if rec.lookup == "context" else self.lookup_m
+        est_params = (self.context_est_params if rec.estimators == "context"
+                      else self.est_params)
+        cfg, persist = default_switching_config(), rec.persist_steps
+        if rec.when:  # its score P(now) - best later P against the margin
+            cfg.estimator_threshold = float(self.when_cfg.margin if margin is None else margin)
+            persist = int(self.when_cfg.persist_steps if persist_steps is None else persist_steps)
+        setup = None
+        if rec.setup:
             setup = self.setup
             lookup_m = sw.walk_on_lookup(lookup_m, self.walk_on, setup)
-        cfg = default_switching_config()
-        if "threshold" in var:
-            cfg.estimator_threshold = var["threshold"]
-        rules = sw.make_rules(switch_rule(method), lookup_m=lookup_m, cfg=cfg,
-                              persist_steps=var.get("persist_steps"), setup=setup)
-        return rules, var.get("est_params", self.est_params)
+        rules = sw.make_rules(rec.rule, lookup_m=lookup_m, cfg=cfg, persist_steps=persist,
+                              setup=setup)
+        return rules, est_params
 
-    def evaluate(self, method: str, trials: int, seed: int, print_fn=None) -> dict:
-        rules, est_params = self.rules_for(method)
+    def evaluate(self, method: str, trials: int, seed: int, print_fn=None, **rule) -> dict:
+        """Per-trial outcomes of row `method` (`rule`: rules_for's overrides)."""
+        rules, est_params = self.rules_for(method, **rule)
         return _run_batches(lambda rng, ids: self.run(self.suite.params, est_params,
                                                       self.det_params, rules, rng, ids),
                             trials, self.batch, seed, print_fn,
@@ -305,9 +326,9 @@ class BaselineSetup:
     `switching.multi_rollout`); the end-to-end policy is a one-policy suite whose "selector"
     always picks it."""
 
-    def __init__(self, method: str, trials: int, batch: int, horizon_s: float, runs, stand_in,
-                 dqn_dir=None, guide_scale: float = 0.0, n_artifacts: int = 7,
-                 backend: str = "auto", track_seed: int = MULTI_TRACK_SEED, detector_dir=None):
+    def __init__(self, method: str, cfg: MultiConfig):
+        trials, runs, stand_in, n_artifacts = cfg.trials, cfg.runs, cfg.stand_in, cfg.n_artifacts
+        track_seed, backend, dqn_dir = cfg.track_seed, cfg.backend, cfg.dqn_dir
         if method not in BASELINES:
             raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
         self.method = method
@@ -339,12 +360,14 @@ class BaselineSetup:
             def q_apply(_, x):  # the only policy of the suite, always
                 return jax.numpy.zeros(x.shape[:-1] + (1,))
             self.sources = self.suite.sources
-        env, apply, horizon = self.env, self.suite.apply, int(round(horizon_s / self.env.dt))
+        env, apply = self.env, self.suite.apply
+        horizon, guide_scale = int(round(cfg.horizon_s / self.env.dt)), cfg.guide_scale
         # the end-to-end policy reads no detector (only its heightmap); the DQN reads the detected
         # kind, the oracle's or the learned one's
+        reads = method_record(method).reads_detector
         det_apply, self.det_params, self.detector = load_detector(
-            detector_dir if method == "dqn" else None, env)
-        if method != "dqn" and detector_dir is not None:
+            cfg.detector_dir if reads else None, env)
+        if not reads and cfg.detector_dir is not None:
             self.detector = "none: the end-to-end policy reads no detector"
 
         def one(suite_params, q_params, det_params, rng, ids):
@@ -354,7 +377,7 @@ class BaselineSetup:
                                          det_params=det_params)
 
         self.run = over_devices(one, n_shared=3)
-        self.batch = batch
+        self.batch = min(cfg.batch, trials)
 
     def evaluate(self, trials: int, seed: int, print_fn=None) -> dict:
         return _run_batches(lambda rng, ids: self.run(self.suite.params, self.q_params,
@@ -362,65 +385,45 @@ class BaselineSetup:
                             trials, self.batch, seed, print_fn, self.method)
 
 
-def evaluate_multi(methods, trials: int, batch: int, horizon_s: float, seed: int, runs,
-                   stand_in=None, est_dir="models/estimators", lookup_dir="experiments/results/lookup",
-                   print_fn=print, guide_scale: float = 0.0, dqn_dir=None,
-                   n_artifacts: int = 7, backend: str = "auto",
-                   per_trial: dict | None = None, track_seed: int = MULTI_TRACK_SEED,
-                   detector_dir=None, when_dir=WHEN_DIR, when_cfg=None) -> tuple[list, dict]:
-    """Table II rows (dicts) for `methods`, and the setup used per init mode ("stand", "random")
-    and per baseline ("dqn", "end_to_end"), every env on the physics `backend` with its policies'
-    env overrides. `wall_s` of a row includes its setup and compiles. `per_trial`, if given, gets
-    each method's per-trial outcomes (TRIAL_FIELDS), to find the trials behind a row's failures.
-    Trial i runs on track `track_seed` + i; `detector_dir`: a learned terrain detector in place of
-    the oracle (switching.detector), for the switching methods and the DQN."""
+def make_setup(rec: Method, recs: Sequence[Method], cfg: MultiConfig):
+    """The set-up that runs row `rec` in a table of the rows `recs`: a baseline's own, or the
+    MultiSetup of its rollout, whose parts are loaded for every row of `recs` sharing it."""
+    if rec.baseline:
+        return BaselineSetup(rec.name, cfg)
+    return MultiSetup([r for r in recs if r.rollout == rec.rollout], cfg)
+
+
+def evaluate_multi(methods, cfg: MultiConfig, seed: int, print_fn=print,
+                   per_trial: dict | None = None) -> tuple[list, dict]:
+    """Table II rows (dicts) for `methods`, and the set-ups that ran them by `Method.rollout`
+    (a baseline: its name), every env on the physics `cfg.backend` with its policies' env
+    overrides. `wall_s` of a row includes its setup and compiles. `per_trial`, if given, gets
+    each method's per-trial outcomes (TRIAL_FIELDS), to find the trials behind a row's failures."""
     setups, rows = {}, []
-    for method in methods:
-        t0 = time.perf_counter()
-        init = "random" if method in RANDOM_INIT_METHODS else "stand"
-        if method in BASELINES:
-            setups[method] = BaselineSetup(method, trials, batch, horizon_s, runs, stand_in, dqn_dir,
-                                           guide_scale, n_artifacts, backend, track_seed,
-                                           detector_dir)
-            merged = setups[method].evaluate(trials, seed, print_fn)
-            sources = setups[method].sources
-        else:
-            # the setup methods run a suite with the setup policies, the learned rule its own
-            # model: each in a rollout of its own
-            learned, key = method in LEARNED_METHODS, setup_key(method)
-            if key not in setups:
-                group = [m for m in methods if setup_key(m) == key]
-                bases = {base_method(m) for m in group}
-                need_est = ("estimator_no_overlap" if init == "random" else "estimator") in bases
-                need_ctx = [m for m in CONTEXT_METHODS if m in bases] if init == "stand" else []
-                setups[key] = MultiSetup(init, trials, batch, horizon_s, runs, stand_in, est_dir,
-                                         lookup_dir, need_est,
-                                         "lookup" in bases and init == "stand", guide_scale,
-                                         n_artifacts, backend, need_context=need_ctx,
-                                         track_seed=track_seed, detector_dir=detector_dir,
-                                         with_setup=method in SETUP_METHODS,
-                                         when_dir=when_dir if learned else None,
-                                         when_cfg=when_cfg)
-            merged = setups[key].evaluate(method, trials, seed, print_fn)
-            sources = setups[key].suite.sources
+    recs = [method_record(m) for m in methods]
+    for rec in recs:
+        t0, key = time.perf_counter(), rec.rollout
+        if key not in setups:
+            setups[key] = make_setup(rec, recs, cfg)
+        used = setups[key]
+        merged = (used.evaluate(cfg.trials, seed, print_fn) if rec.baseline
+                  else used.evaluate(rec.name, cfg.trials, seed, print_fn))
         if per_trial is not None:
-            per_trial[method] = {k: np.asarray(merged[k]) for k in TRIAL_FIELDS if k in merged}
+            per_trial[rec.name] = {k: np.asarray(merged[k]) for k in TRIAL_FIELDS if k in merged}
         row = episode_table(merged)
-        used = setups[method if method in BASELINES else key]
-        row.update(method=method, init=init, wall_s=time.perf_counter() - t0,
+        row.update(method=rec.name, init=rec.suite, wall_s=time.perf_counter() - t0,
                    switches_per_trial=float(np.mean(merged["n_switches"])),
-                   policies=list(sources), backend=used.env.backend, detector=used.detector)
-        if method not in BASELINES:
-            base = base_method(method)
-            parts = list(used.parts.get(base, used.parts.get(switch_rule(base), [])))
-            if method in SETUP_METHODS:
-                parts += used.parts["setup"]
+                   policies=list(used.sources if rec.baseline else used.suite.sources),
+                   backend=used.env.backend, detector=used.detector)
+        if not rec.baseline:
+            if rec.setup:
                 row["policy_names"] = list(used.policy_names)
+            parts = used.parts_for(rec)
             if parts:
                 row["switch_parts"] = parts  # the estimators or lookup file per target
         rows.append(row)
-        print_fn(f"  {method:22s} distance {row['distance_pct']:5.1f}%  success {row['success_pct']:5.1f}%"
-                 f"  ({row['wall_s']:.0f} s)")
+        print_fn(f"  {rec.name:22s} distance {row['distance_pct']:5.1f}%  success "
+                 f"{row['success_pct']:5.1f}%  ({row['wall_s']:.0f} s)")
     return rows, setups
 
 

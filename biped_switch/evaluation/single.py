@@ -22,6 +22,7 @@ import numpy as np
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import EVAL_TRACK_SEED, default_single_config
+from biped_switch.kinds import BEHAVIOUR
 from biped_switch.learning.policies import POLICY_NAMES, load_policy
 from biped_switch.simulation.rollout import episode_keys, rollout
 from biped_switch.stats import episode_table, join_rows, mean_ci
@@ -59,16 +60,17 @@ def speed_table(result: dict, dt_s: float, pause_s: float) -> dict:
 
 def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, seed: int,
                     horizon_s: float | None, batch: int, backend: str = "auto",
-                    track_seed: int | None = None) -> dict:
-    """Table I row: `trials` episodes of `policy` on its own terrain kind, trial i on track
+                    track_seed: int | None = None, kind: str | None = None) -> dict:
+    """Table I row: `trials` episodes of `policy` on its own terrain kind (or on `kind`'s: how a
+    policy fares on a kind it was not trained for, e.g. a new kind's baseline), trial i on track
     `track_seed + i` (default EVAL_TRACK_SEED: tracks training never saw), in an env made with
     the env overrides the policy was trained with. `horizon_s` None: `single_horizon_s` of the
     farthest finish line of these tracks."""
     track_seed = EVAL_TRACK_SEED if track_seed is None else int(track_seed)
     overrides = runs_lib.policy_env_overrides(ckpt)
     # difficulty 1, no guides, no pushes (the config's defaults)
-    env = env_lib.make_env(policy, init, n_tracks=trials, seed=track_seed, backend=backend,
-                           **overrides)
+    env = env_lib.make_env(kind or BEHAVIOUR[policy].terrain, init, n_tracks=trials,
+                           seed=track_seed, backend=backend, **overrides)
     act, progress = load_policy(ckpt, env)
     finish = jax.vmap(lambda i: env.track_arrays(i, env.cfg.difficulty)[4])(
         jax.numpy.arange(env.bank.size))
@@ -90,7 +92,7 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
     merged = {k: np.concatenate([r[k] for r in results])[:trials] for k in results[0]}
     out = episode_table(merged)
     out.update(speed_table(merged, env.dt, pause_s))
-    out.update(policy=policy, init=init, checkpoint=str(ckpt), train_step=progress["step"],
+    out.update(policy=policy, kind=env.cfg.kind, init=init, checkpoint=str(ckpt), train_step=progress["step"],
                curriculum=progress["curriculum"], curriculum_done=progress.get("curriculum_done"),
                curriculum_end=progress.get("curriculum_end"), push_held=progress.get("push_held"),
                train_h=float(progress["wall_s"]) / 3600.0 if "wall_s" in progress else None,
@@ -109,7 +111,7 @@ def evaluate_single(policy: str, init: str, ckpt: pathlib.Path, trials: int, see
 
 # The settings that fix what a Table I row measured (the batch too: it splits the rng), so that
 # `evaluate single` may add the rows of policies that finish later to a table of the same trials.
-TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "track_seed")
+TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "track_seed", "kind")  # kind: --kind
 
 
 def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]:

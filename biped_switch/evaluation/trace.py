@@ -27,6 +27,3 @@ def trace_trial(setup, method: str, trial: int, seed: int) -> dict:
                            est_params=est_params, det_params=setup.det_params,
                            rules=rules, rng=jax.random.PRNGKey(seed + trial), track_id=trial))
     return {k: np.asarray(v) for k, v in rec.items()}
-
-
-from biped_switch.names import FIG5_KEYS  # noqa: E402,F401

@@ -4,13 +4,14 @@ the DQN and the switch estimators. A damaged file becomes an error that names it
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 import shutil
 import warnings
 
 import orbax.checkpoint as ocp
 
-from biped_switch.learning.runs import PROGRESS, checkpoints, read_progress
+from biped_switch.learning.runs import PROGRESS, RunFileError, checkpoints, read_progress
 
 
 class CheckpointError(ValueError):
@@ -48,7 +49,11 @@ def save_tree(run_dir: pathlib.Path, step: int, tree, progress: dict,
     beyond the last `keep` are removed."""
     path = pathlib.Path(run_dir) / "checkpoints" / f"{step:012d}"
     write_tree(path, tree)
-    (path / PROGRESS).write_text(json.dumps(progress, indent=2))
+    # progress.json marks a checkpoint finished, so it appears whole or not at all: a process
+    # killed while writing it leaves a checkpoint without one, which a resume passes over
+    tmp = path / (PROGRESS + ".tmp")
+    tmp.write_text(json.dumps(progress, indent=2))
+    os.replace(tmp, path / PROGRESS)
     if keep is not None:
         for old in sorted(path.parent.glob("[0-9]" * 12))[:-keep]:
             shutil.rmtree(old, ignore_errors=True)
@@ -82,7 +87,7 @@ def load_newest_intact(run_dir: pathlib.Path, load, print_fn=print, set_aside: b
     for ckpt in reversed(checkpoints(run_dir)):
         try:
             return load(ckpt), ckpt
-        except CheckpointError as e:
+        except (CheckpointError, RunFileError) as e:
             last = e
             if set_aside:
                 ckpt.rename(ckpt.with_name(ckpt.name + ".damaged"))

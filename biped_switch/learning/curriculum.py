@@ -166,3 +166,50 @@ def push_held(high: float, cfg=None) -> float:
     """The highest push level a policy met a milestone at, given its plateau's highest level."""
     cfg = cfg or default_curriculum_config()
     return round(max(high - cfg.push_step, 0.0), 6)
+
+
+class CurriculumEnd(NamedTuple):
+    """The host-side record of how far a run's curriculum has come beyond its traced state: the
+    push stage's highest level and when it was reached (for the plateau rule), and whether, how
+    and at which push level the curriculum ended. Saved in progress.json with every checkpoint."""
+
+    done: bool = False
+    end: str | None = None  # "full pushes" | "push plateau"
+    held: float | None = None  # the push level the policy holds at the end
+    high: float = 0.0
+    high_step: int = 0
+
+    @classmethod
+    def from_progress(cls, prog: dict, rows_fn) -> "CurriculumEnd":
+        """From a checkpoint's progress record; `rows_fn()` gives metrics.csv's rows up to it,
+        read only for checkpoints saved before the plateau was recorded."""
+        high, high_step = ((float(prog["push_high"]), int(prog["push_high_step"]))
+                           if "push_high" in prog else push_high_from_rows(rows_fn()))
+        return cls(bool(prog.get("curriculum_done", False)), prog.get("curriculum_end"),
+                   prog.get("push_held"), high, high_step)
+
+    def as_progress(self) -> dict:
+        return {"curriculum_done": self.done, "curriculum_end": self.end,
+                "push_held": self.held, "push_high": self.high, "push_high_step": self.high_step}
+
+    def after_check(self, cs: CurriculumState, new_cs: CurriculumState, ev: dict, step: int,
+                    cfg=None) -> tuple["CurriculumEnd", str | None]:
+        """The record after a chunk's check `ev` moved `cs` to `new_cs` at env step `step`, and a
+        message when the push stage just ended on a plateau. The last stage ends like the others:
+        at its end value, with one more milestone there."""
+        cfg = cfg or default_curriculum_config()
+        done, end, held = self.done, self.end, self.held
+        done = done or bool(int(cs.stage) == 2 and float(cs.push_scale) >= 1.0 - 1e-6
+                            and milestone(ev["reward_per_step"], ev["progress_frac"], cfg,
+                                          fell_frac=ev["fell"]))
+        if done and end is None:
+            end, held = "full pushes", 1.0
+        high, high_step = push_high_update(self.high, self.high_step, int(new_cs.stage),
+                                           float(new_cs.push_scale), step)
+        msg = None
+        if not done and push_plateaued(high, high_step, step, cfg):
+            done, end, held = True, "push plateau", push_held(high, cfg)
+            msg = (f"the push stage has not risen above {high:.2f} for {step - high_step:,} env "
+                   f"steps (push_plateau_steps {int(cfg.push_plateau_steps):,}): the curriculum "
+                   f"ends on a plateau, holding push {held:.2f}")
+        return CurriculumEnd(done, end, held, high, high_step), msg

@@ -87,6 +87,7 @@ import jax.numpy as jnp
 import optax
 
 from biped_switch.config import default_dqn_config
+from biped_switch.kinds import policy_of_code
 from biped_switch.learning import policies as pol
 from biped_switch.learning.networks import EncodedMLP
 from biped_switch.learning.normalizer import standardize
@@ -110,9 +111,10 @@ def q_input(obs: jax.Array, detected_kind: jax.Array, n_policy_obs: int) -> jax.
 
 
 def oracle_bonus(choice: jax.Array, detected_kind: jax.Array, bonus) -> jax.Array:
-    """`bonus` where the chosen policy is the detected artifact's (kind + 1; walk = 0 when nothing
-    is detected, kind -1), else 0."""
-    match = jnp.asarray(choice).astype(jnp.int32) == jnp.asarray(detected_kind).astype(jnp.int32) + 1
+    """`bonus` where the chosen policy is the detected artifact's (kinds.POLICY_OF_CODE; walk's
+    when nothing is detected, kind -1), else 0."""
+    want = policy_of_code(jnp.asarray(detected_kind).astype(jnp.int32), jnp)
+    match = jnp.asarray(choice).astype(jnp.int32) == want
     return jnp.where(match, jnp.asarray(bonus, jnp.float32), 0.0)
 
 

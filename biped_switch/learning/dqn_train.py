@@ -146,7 +146,9 @@ def make_train_fns(cfg, env, suite_apply) -> types.SimpleNamespace:
     `log_every` iterations (donates `ts`) -> (ts, sums); plus `q_apply`, `q_init`, `optimizer`,
     `max_steps`, `in_size`, `hm_size`. `sums` holds the per-iteration stats summed over the call
     (`epsilon_used`: the epsilons the iterations acted with) and `epsilon`, the schedule's value at
-    the returned `ts.env_steps` (what the next call starts with)."""
+    the returned `ts.env_steps` (what the next call starts with).
+
+    One function: its jitted pieces close over one run's config, env and sizes, cached together."""
     cache_key = (id(env), id(suite_apply), cfg.to_json_best_effort())
     if cache_key in _FNS_CACHE:
         return _FNS_CACHE[cache_key][2]
@@ -375,7 +377,9 @@ def train_dqn(cfg, run_dir, runs="runs", stand_in: str | None = None, max_chunks
 
     `env` (default: `make_dqn_env` on `backend` with the suite's env overrides), `suite` (default:
     the `cfg.init` policies under `runs`, missing ones replaced by `stand_in`) and `pool` (the
-    episode starts; default: `reset_pool` of one state per bank track) may be passed in (tests)."""
+    episode starts; default: `reset_pool` of one state per bank track) may be passed in (tests).
+
+    One function: one session top to bottom, its resume state carried through every chunk."""
 
     t_session = time.perf_counter()
     run_dir = pathlib.Path(run_dir)

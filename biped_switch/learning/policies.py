@@ -4,7 +4,7 @@ stacked pytree, so a switching controller is one jitted function.
 Every policy of a suite has the same network config and the same env overrides (action mode,
 phase clock: `suite_env_overrides`, to build the suite's env with), so one env serves them all
 and their parameters stack along a leading axis (index = POLICY_INDEX: walk 0, jumps 1, gaps 2,
-stairs 3, i.e. artifact code + 1) and `all_actions(apply, params, obs)` evaluates all of them on a
+stairs 3: kinds.py's behaviour records) and `all_actions(apply, params, obs)` evaluates all of them on a
 batch with one vmap. A switching controller then picks each env's action by its active index.
 Evaluating four small MLPs per step costs little next to the physics, and it keeps policies and
 switching rules traced arrays: the stand-init and random-init suites share one compiled rollout.

@@ -6,18 +6,28 @@ the curriculum's values as traced inputs, and a jitted computation with a host c
 `iteration(state, curriculum) -> (state, metrics)` and calls it for the whole run: a curriculum
 notch, a resume or a new chunk never compiles again.
 
-One iteration: `unroll_length` steps of `num_envs` envs (auto-reset to fresh episodes drawn at the
-current curriculum values; an episode that reaches `episode_length` steps is truncated, and its
-last step is masked out of the advantages, as Brax does), GAE, then `num_updates_per_batch` epochs
-of `num_minibatches` clipped-surrogate minibatch updates (Adam, global-norm clipping). Policy: a
-Gaussian with a state-independent log std; the env clips actions to [-1, 1]. `max_action_std`
-(0: none) holds each joint's std at or under a cap by projecting the log std after every update
-and before every rollout: the entropy bonus otherwise drives up the std of joints whose noise the
-guides absorb (README, Training). Observation
-normalisation (normalizer.py): running mean/std of the robot state and the extras (the heightmap,
-already in [0, 1], is fed raw so that a policy trained on flat ground meets steps without
-exploding inputs); the statistics are updated after each iteration's updates, so the updates see
-the same inputs as the collection did.
+One iteration is `collect` then `update`. `collect`: `unroll_length` steps of `num_envs` envs
+(auto-reset to fresh episodes drawn at the current curriculum values; an episode that reaches
+`episode_length` steps is truncated, and its last step is masked out of the advantages, as Brax
+does). `update`: GAE, then `num_updates_per_batch` epochs of `num_minibatches` minibatch steps of
+`ppo_loss` (the clipped surrogate, Adam, global-norm clipping). Policy: a Gaussian with a
+state-independent log std; the env clips actions to [-1, 1]. `max_action_std` (0: none) holds
+each joint's std at or under a cap by projecting the log std after every update and before every
+rollout: the entropy bonus otherwise drives up the std of joints whose noise the guides absorb
+(README, Training).
+
+What the rollout stores is the networks' input, not the observation: with the pooled heightmap
+encoding (the default) the 2,400 heightmap cells are mean-pooled to 150 values once, at
+collection (`policy_input`), and the networks run on that with a 1 x 1 pool, which is the same
+function of the observation (pooling has no parameters, and the heightmap is fed un-normalised).
+The inputs are normalised once per step, and the stored normalised input is what the updates
+read, since the normaliser only moves after them. This keeps the rollout 12x smaller than the
+observation (203 against 2,453 columns), which is most of what the update costs on a CPU.
+
+Observation normalisation (normalizer.py): running mean/std of the robot state and the phase
+clock (the heightmap, already in [0, 1], is fed raw so that a policy trained on flat ground meets
+steps without exploding inputs; its entries in the normaliser are carried but never updated or
+read); the statistics are updated after each iteration's updates.
 
 Everything that a resume needs is in `TrainState` (parameters, optimiser moments, normaliser);
 the env state is not saved (a resume starts fresh episodes).
@@ -51,6 +61,17 @@ class Trainer(NamedTuple):
     policy: object  # (params, norm, obs, rng, deterministic) -> action; obs may carry more
     # columns after the policy observation (a detector one-hot), which it ignores
     steps_per_iteration: int
+    collect: object = None  # (TrainState, env state, rng, curriculum) -> (env state, Rollout)
+    update: object = None  # (TrainState, Rollout, rng) -> (TrainState, metrics)
+    forward: object = None  # (TrainState, obs, rng) -> the collection's per-step network pass
+
+
+class LossParams(NamedTuple):
+    """The clipped surrogate's constants (cfg.ppo)."""
+
+    clipping_epsilon: float
+    value_cost: float
+    entropy_cost: float
 
 
 def norm_mask(env) -> np.ndarray:
@@ -62,10 +83,15 @@ def norm_mask(env) -> np.ndarray:
     return mask
 
 
-def make_networks(net_cfg, env):
+def make_networks(net_cfg, env, pooled_input: bool = False):
+    """Policy and value networks on the policy observation, or, with `pooled_input`, on its
+    `policy_input` (heightmap already pooled): the same parameters either way."""
     lay = layout(env)
-    kw = dict(state_size=lay.state_size, grid=lay.grid, encoding=net_cfg.encoding,
-              pool=tuple(net_cfg.pool), hm_hidden=tuple(net_cfg.hm_hidden))
+    grid, pool = lay.grid, tuple(net_cfg.pool)
+    if pooled_input:
+        grid, pool = (lay.grid[0] // pool[0], lay.grid[1] // pool[1]), (1, 1)
+    kw = dict(state_size=lay.state_size, grid=grid, encoding=net_cfg.encoding,
+              pool=pool, hm_hidden=tuple(net_cfg.hm_hidden))
     pi = networks.PolicyValueMLP(env.action_size, tuple(net_cfg.policy_hidden), **kw)
     vf = networks.PolicyValueMLP(1, tuple(net_cfg.value_hidden), **kw)
     return pi, vf
@@ -84,6 +110,30 @@ def make_policy(net_cfg, env):
         return mean + jnp.exp(params["log_std"]) * jax.random.normal(rng, mean.shape)
 
     return policy
+
+
+def policy_input_fn(net_cfg, env):
+    """(obs (..., policy obs) -> network input, its column map into the observation (I,), its
+    normalisation mask (I,)). With the pooled encoding the heightmap is pooled here (150 values
+    for 2,400): the heightmap columns' map entries point at the first heightmap column, whose
+    statistics are never used (mask 0). With the MLP encoding, the observation itself."""
+    lay = layout(env)
+    mask = norm_mask(env)
+    if net_cfg.encoding != "pool":
+        return (lambda obs: obs), np.arange(lay.policy_size), mask
+    pr, pc = net_cfg.pool
+    n_pool = (lay.grid[0] // pr) * (lay.grid[1] // pc)
+    hm0 = lay.heightmap.start
+    cols = np.concatenate([np.arange(lay.state_size), np.full(n_pool, hm0),
+                           np.arange(lay.phase.start, lay.phase.stop)])
+    in_mask = np.concatenate([mask[:lay.state_size], np.zeros(n_pool, np.float32),
+                              mask[lay.phase]]).astype(np.float32)
+
+    def policy_input(obs):
+        s, h, rest = lay.split(obs[..., :lay.policy_size])
+        return jnp.concatenate([s, networks.encode_heightmap(h, lay.grid, (pr, pc)), rest], -1)
+
+    return policy_input, cols, in_mask
 
 
 def _gaussian_logp(x, mean, log_std):
@@ -109,9 +159,50 @@ def gae(reward, value, value_next, term, trunc, discount, lam):
     return adv
 
 
+def ppo_loss(params, mb, pi_apply, vf_apply, hp: LossParams):
+    """PPO's loss on one minibatch: (total, info).
+
+    mb: "x" the networks' normalised inputs (N, I), "action" (N, 12), "logp" its log-likelihood
+    when it was sampled, "adv" advantages, "target" value targets, "mask" 0 on truncated steps,
+    "learner" 1 on the steps where the learner's own action acted (all, but in a setup env).
+    Advantages are standardised over the learner's steps; the surrogate is averaged over the steps
+    that are both the learner's and not truncated; the value loss over every step."""
+    mean = pi_apply(params["policy"], mb["x"])
+    logp = _gaussian_logp(mb["action"], mean, params["log_std"])
+    ratio = jnp.exp(logp - mb["logp"])
+    lm = mb["learner"]
+    n_l = jnp.maximum(jnp.sum(lm), 1.0)
+    a = mb["adv"]
+    a_mean = jnp.sum(a * lm) / n_l  # = jnp.mean and jnp.std when every step is the learner's
+    a = (a - a_mean) / (jnp.sqrt(jnp.sum(lm * (a - a_mean) ** 2) / n_l) + 1e-8)
+    eps = hp.clipping_epsilon
+    surr = jnp.minimum(ratio * a, jnp.clip(ratio, 1 - eps, 1 + eps) * a)
+    w = mb["mask"] * lm
+    pg = -jnp.sum(surr * w) / jnp.maximum(jnp.sum(w), 1.0)
+    v = vf_apply(params["value"], mb["x"])[..., 0]
+    v_loss = 0.5 * jnp.mean((v - mb["target"]) ** 2)
+    entropy = jnp.sum(params["log_std"] + 0.5 * jnp.log(2 * jnp.pi * jnp.e))
+    total = pg + hp.value_cost * v_loss - hp.entropy_cost * entropy
+    return total, {"loss/policy": pg, "loss/value": v_loss, "loss/entropy": entropy,
+                   "loss/approx_kl": jnp.mean((ratio - 1) - jnp.log(ratio)),
+                   "loss/clip_frac": jnp.mean(jnp.abs(ratio - 1) > eps)}
+
+
+def update_normalizer_cols(norm: Normalizer, batch, cols, mask, axis_name=None) -> Normalizer:
+    """`update_normalizer` of the entries `cols` (I,) where `mask` > 0, from a batch (N, I) of
+    those columns; every other entry of `norm` is left as it is (the count moves for all)."""
+    sel = np.flatnonzero(np.asarray(mask) > 0)
+    idx = np.asarray(cols)[sel]
+    part = Normalizer(norm.mean[idx], norm.var[idx], norm.count)
+    new = update_normalizer(part, batch[:, sel], axis_name)
+    return Normalizer(norm.mean.at[idx].set(new.mean), norm.var.at[idx].set(new.var), new.count)
+
+
 def make_train(cfg, env) -> Trainer:
     """The PPO of `cfg.ppo` with the networks of `cfg.network` on `env` (a BipedEnv or any env
-    with reset(rng, difficulty, guide_scale=, push_scale=) and step(state, action))."""
+    with reset(rng, difficulty, guide_scale=, push_scale=) and step(state, action)).
+    One function: its inner `forward`, `collect` and `update` close over the networks, shapes
+    and devices they are compiled for; the math is in `ppo_loss`, `gae` and the normaliser."""
     p = cfg.ppo
     n_dev = jax.local_device_count()
     if p.num_envs % n_dev:
@@ -128,9 +219,12 @@ def make_train(cfg, env) -> Trainer:
 
     def psum(x):
         return x if axis is None else jax.lax.psum(x, axis)
-    pi, vf = make_networks(cfg.network, env)
-    mask = jnp.asarray(norm_mask(env))
+    pi, vf = make_networks(cfg.network, env, pooled_input=cfg.network.encoding == "pool")
+    pi_full, vf_full = make_networks(cfg.network, env)
+    policy_input, in_cols, in_mask = policy_input_fn(cfg.network, env)
+    in_cols_j, in_mask_j = jnp.asarray(in_cols), jnp.asarray(in_mask)
     policy = make_policy(cfg.network, env)
+    hp = LossParams(float(p.clipping_epsilon), float(p.value_cost), float(p.entropy_cost))
     tx = optax.chain(optax.clip_by_global_norm(p.max_grad_norm),
                      optax.adam(p.learning_rate, eps=1e-5))
     obs_size = layout(env).policy_size
@@ -149,7 +243,7 @@ def make_train(cfg, env) -> Trainer:
     def init(rng) -> TrainState:
         k_pi, k_vf = jax.random.split(rng)
         dummy = jnp.zeros((1, obs_size))
-        params = {"policy": pi.init(k_pi, dummy), "value": vf.init(k_vf, dummy),
+        params = {"policy": pi_full.init(k_pi, dummy), "value": vf_full.init(k_vf, dummy),
                   "log_std": jnp.full((env.action_size,), np.log(p.init_action_std), jnp.float32)}
         return TrainState(cap_std(params), tx.init(params), Normalizer.fresh(obs_size))
 
@@ -159,19 +253,34 @@ def make_train(cfg, env) -> Trainer:
         state = jax.vmap(lambda k: env.reset(k, d, guide_scale=g, push_scale=push))(keys)
         return state, jnp.zeros(n_envs, jnp.int32), jnp.zeros(n_envs)
 
-    def iteration(ts: TrainState, envs, rng, curr):
-        ts = ts._replace(params=cap_std(ts.params))  # a run resumed under a new cap
+    def net_input(norm, obs):
+        """(raw, normalised) network inputs of `obs` under the normaliser `norm`."""
+        x = policy_input(obs)
+        return x, normalize(Normalizer(norm.mean[in_cols_j], norm.var[in_cols_j], norm.count), x,
+                            in_mask_j)
+
+    def forward(ts: TrainState, obs, key):
+        """The collection's network pass on a batch of observations: the sampled action, its
+        log-likelihood, the value, and the raw and normalised network inputs."""
+        x, xn = net_input(ts.norm, obs)
+        mean = pi.apply(ts.params["policy"], xn)
+        action = mean + jnp.exp(ts.params["log_std"]) * jax.random.normal(key, mean.shape)
+        return {"x_raw": x, "x": xn, "action": action,
+                "logp": _gaussian_logp(action, mean, ts.params["log_std"]),
+                "value": vf.apply(ts.params["value"], xn)[..., 0]}
+
+    def collect(ts: TrainState, envs, keys, curr):
+        """`unroll_length` steps of every env; `keys` (2, 2): the fresh episodes' and the
+        actions' keys."""
+        params = cap_std(ts.params)  # a run resumed under a new cap
         env_state, ep_t, ep_ret = envs
-        k_fresh, k_roll, k_sgd = jax.random.split(rng, 3)
+        k_fresh, k_roll = keys[0], keys[1]
         fresh, _, _ = reset_envs(k_fresh, curr)
 
         def step(carry, key):
             state, t, ret = carry
-            obs = state.obs
-            mean = pi.apply(ts.params["policy"], normalize(ts.norm, obs, mask))
-            action = mean + jnp.exp(ts.params["log_std"]) * jax.random.normal(key, mean.shape)
-            logp = _gaussian_logp(action, mean, ts.params["log_std"])
-            value = vf.apply(ts.params["value"], normalize(ts.norm, obs, mask))[..., 0]
+            act = forward(ts._replace(params=params), state.obs, key)
+            action = act["action"]
             nxt = jax.vmap(env.step)(state, action)
             t = t + 1
             term = nxt.done > 0
@@ -182,8 +291,7 @@ def make_train(cfg, env) -> Trainer:
             # 1 where the env uses this action (a setup env's frozen phases: 0); the policy
             # loss is weighted by it, values and GAE run over every step (switching/setup.py)
             learner = state.info.get("learner_acts", jnp.ones_like(nxt.reward))
-            out = {"obs": obs, "action": action, "logp": logp, "value": value, "learner": learner,
-                   "reward": nxt.reward, "term": term.astype(jnp.float32),
+            out = {**act, "learner": learner, "reward": nxt.reward, "term": term.astype(jnp.float32),
                    "trunc": trunc.astype(jnp.float32),
                    "ep_end": end.astype(jnp.float32), "ep_return": ret, "ep_length": t,
                    "ep_success": m["success"], "ep_fell": m["fell"],
@@ -194,38 +302,18 @@ def make_train(cfg, env) -> Trainer:
 
         (env_state, ep_t, ep_ret), tr = jax.lax.scan(step, (env_state, ep_t, ep_ret),
                                                     jax.random.split(k_roll, T))
-        last_v = vf.apply(ts.params["value"], normalize(ts.norm, env_state.obs, mask))[..., 0]
+        tr["last_value"] = vf.apply(params["value"], net_input(ts.norm, env_state.obs)[1])[..., 0]
+        return (env_state, ep_t, ep_ret), tr
 
-        v_next = jnp.concatenate([tr["value"][1:], last_v[None]], axis=0)
+    def update(ts: TrainState, tr, k_sgd):
+        v_next = jnp.concatenate([tr["value"][1:], tr["last_value"][None]], axis=0)
         adv = gae(tr["reward"] * p.reward_scaling, tr["value"], v_next, tr["term"], tr["trunc"],
                   p.discounting, p.gae_lambda)
         target = adv + tr["value"]
         flat = {k: tr[k].reshape((n_batch,) + tr[k].shape[2:])
-                for k in ("obs", "action", "logp", "value", "learner")}
+                for k in ("x", "action", "logp", "learner")}
         flat["adv"], flat["target"] = adv.reshape(-1), target.reshape(-1)
         flat["mask"] = 1.0 - tr["trunc"].reshape(-1)
-
-        def loss_fn(params, mb):
-            obs_n = normalize(ts.norm, mb["obs"], mask)
-            mean = pi.apply(params["policy"], obs_n)
-            logp = _gaussian_logp(mb["action"], mean, params["log_std"])
-            ratio = jnp.exp(logp - mb["logp"])
-            lm = mb["learner"]  # 1 on the learner's own steps (all, but in a setup env)
-            n_l = jnp.maximum(jnp.sum(lm), 1.0)
-            a = mb["adv"]
-            a_mean = jnp.sum(a * lm) / n_l  # = jnp.mean and jnp.std when every step is the learner's
-            a = (a - a_mean) / (jnp.sqrt(jnp.sum(lm * (a - a_mean) ** 2) / n_l) + 1e-8)
-            surr = jnp.minimum(ratio * a, jnp.clip(ratio, 1 - p.clipping_epsilon,
-                                                   1 + p.clipping_epsilon) * a)
-            w = mb["mask"] * lm
-            pg = -jnp.sum(surr * w) / jnp.maximum(jnp.sum(w), 1.0)
-            v = vf.apply(params["value"], obs_n)[..., 0]
-            v_loss = 0.5 * jnp.mean((v - mb["target"]) ** 2)
-            entropy = jnp.sum(params["log_std"] + 0.5 * jnp.log(2 * jnp.pi * jnp.e))
-            total = pg + p.value_cost * v_loss - p.entropy_cost * entropy
-            return total, {"loss/policy": pg, "loss/value": v_loss, "loss/entropy": entropy,
-                           "loss/approx_kl": jnp.mean((ratio - 1) - jnp.log(ratio)),
-                           "loss/clip_frac": jnp.mean(jnp.abs(ratio - 1) > p.clipping_epsilon)}
 
         def sgd_epoch(carry, key):
             params, opt_state = carry
@@ -235,7 +323,8 @@ def make_train(cfg, env) -> Trainer:
 
             def mb_step(c, mb):
                 params, opt_state = c
-                (_, info), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, mb)
+                (_, info), grads = jax.value_and_grad(ppo_loss, has_aux=True)(
+                    params, mb, pi.apply, vf.apply, hp)
                 grads = pmean(grads)  # one update from every device's minibatch: params stay equal
                 upd, opt_state = tx.update(grads, opt_state, params)
                 return (cap_std(optax.apply_updates(params, upd)), opt_state), info
@@ -243,8 +332,10 @@ def make_train(cfg, env) -> Trainer:
             return jax.lax.scan(mb_step, (params, opt_state), mbs)
 
         (params, opt_state), info = jax.lax.scan(
-            sgd_epoch, (ts.params, ts.opt_state), jax.random.split(k_sgd, p.num_updates_per_batch))
-        norm = update_normalizer(ts.norm, flat["obs"], axis)
+            sgd_epoch, (cap_std(ts.params), ts.opt_state),
+            jax.random.split(k_sgd, p.num_updates_per_batch))
+        norm = update_normalizer_cols(ts.norm, tr["x_raw"].reshape(n_batch, -1), in_cols, in_mask,
+                                      axis)
         ends = tr["ep_end"]
         n_end = psum(jnp.sum(ends))
 
@@ -266,10 +357,26 @@ def make_train(cfg, env) -> Trainer:
             "episode/progress_frac": ep_mean(tr["ep_progress"]),
         })
         metrics.update({k: pmean(jnp.mean(v)) for k, v in tr["terms"].items()})  # per step
-        return TrainState(params, opt_state, norm), (env_state, ep_t, ep_ret), metrics
+        return TrainState(params, opt_state, norm), metrics
+
+    def split_keys(rng):
+        k_fresh, k_roll, k_sgd = jax.random.split(rng, 3)
+        return jnp.stack([k_fresh, k_roll]), k_sgd
+
+    def collect_keys(ts, envs, rng, curr):
+        """`collect` with the iteration's own key stream (for timing the phases apart)."""
+        k2, _ = split_keys(rng)
+        return collect(ts, envs, k2, curr)
+
+    def iteration(ts: TrainState, envs, rng, curr):
+        k2, k_sgd = split_keys(rng)
+        envs, tr = collect(ts, envs, k2, curr)
+        ts, metrics = update(ts, tr, k_sgd)
+        return ts, envs, metrics
 
     if axis is None:
-        return Trainer(init, jax.jit(reset_envs), jax.jit(iteration), policy, n_batch)
+        return Trainer(init, jax.jit(reset_envs), jax.jit(iteration), policy, n_batch,
+                       jax.jit(collect_keys), jax.jit(update), forward)
     # Every local device runs its share of the envs; the train state is the same on all of them
     # (gradients and normaliser statistics are averaged), so it leaves pmap unreplicated.
     reset_p = jax.pmap(reset_envs, in_axes=(0, None))

@@ -9,6 +9,8 @@ Plain Python (no JAX): the reports layer and the tests read recipes fast. A comm
                        the change holds from that step (a resume from the checkpoint there) on
     warm_start         the checkpoint its parameters started from ({run, step, path: committed,
                        recorded: the path config.json names, note}), or null
+    suite              the runs whose final checkpoints it trains beside (a setup policy's frozen
+                       source and target policies), or absent
     continues          the run it is a continuation of ({run, step, path}), or null
     final_step, ends   where it stopped and why ("curriculum": its curriculum finished;
                        "total steps": --total-steps; "by hand": stopped, so the replay stops there)
@@ -21,6 +23,11 @@ Plain Python (no JAX): the reports layer and the tests read recipes fast. A comm
 unchanged flags, each run up to the step where the next change came (`--total-steps`); `replay`
 makes those calls into <out>/<run>/, never falling back on the committed copy
 (`runs.no_committed_copy`), and resumes a replay that was cut off.
+
+A replay with a `seed` (`train --recipe ... --seed 1`) is a second training seed of the suite: the
+recipe's own `--seed` is replaced, it goes into its own folder (`replay_dir`: runs/replay_seed1/),
+and a warm start or a continuation must come from the replay of its source in that folder, never
+from a committed checkpoint (trained on another seed).
 """
 
 from __future__ import annotations
@@ -150,7 +157,8 @@ def order(run_dirs) -> list[pathlib.Path]:
 
 
 def _needs(rec: dict) -> list[str]:
-    return [s["run"] for s in (rec.get("warm_start"), rec.get("continues")) if s]
+    return [s["run"] for s in (rec.get("warm_start"), rec.get("continues")) if s] + list(
+        rec.get("suite", []))
 
 
 def _step(run_dir: pathlib.Path) -> int:
@@ -158,10 +166,45 @@ def _step(run_dir: pathlib.Path) -> int:
     return 0 if ckpt is None else int(runs_lib.read_progress(ckpt)["step"])
 
 
-def _warm_start(rec: dict, out: pathlib.Path, say) -> str | None:
+def committed_replay_dir(out: pathlib.Path) -> pathlib.Path:
+    """Where a seeded replay folder's unfinished or final runs are committed, for a later session
+    or a fresh clone to go on from: models/<replay folder name>/ (models/replay_seed1/)."""
+    return REPO / "models" / pathlib.Path(out).name
+
+
+def commit_replay(target: pathlib.Path) -> pathlib.Path:
+    """Copies a replayed run (<out>/<run>/) to `committed_replay_dir`: its latest checkpoint only,
+    the warm-start copies later recipes start from, its logs and replay.json."""
+    dest = committed_replay_dir(target.parent) / target.name
+    runs_lib.commit_run(target, dest)
+    for name in ("replay.log", DONE):
+        if (target / name).is_file():
+            shutil.copy2(target / name, dest / name)
+    if (target / "warm_start").is_dir():
+        shutil.copytree(target / "warm_start", dest / "warm_start", dirs_exist_ok=True)
+    return dest
+
+
+def _restore_replay(target: pathlib.Path, say) -> None:
+    """A seeded replay with nothing under <out>/<run>/ goes on from its committed copy."""
+    src = committed_replay_dir(target.parent) / target.name
+    if runs_lib.latest_checkpoint(target) is None and runs_lib.latest_checkpoint(src) is not None:
+        shutil.copytree(src, target, dirs_exist_ok=True)
+        say(f"{rel(target)}: going on from its committed copy {rel(src)} "
+            f"(step {_step(target):,})")
+
+
+def replay_dir(runs, seed: int | None) -> pathlib.Path:
+    """Where a replay goes: <runs>/replay/, or <runs>/replay_seed<seed>/ for a seeded replay."""
+    if seed is not None and seed < 0:
+        raise RecipeError(f"--seed {seed}: a replay's seed must be >= 0")
+    return pathlib.Path(runs) / ("replay" if seed is None else f"replay_seed{seed}")
+
+
+def _warm_start(rec: dict, out: pathlib.Path, say, strict: bool = False) -> str | None:
     """The warm-start checkpoint of a replay: the source's replay under `out` when there is one
-    (its copy at that step, or its final checkpoint for a source's final step), else the
-    committed checkpoint the recipe names."""
+    (its copy at that step, or its final checkpoint for a source's final step), else (unless
+    `strict`, a seeded replay) the committed checkpoint the recipe names."""
     w = rec.get("warm_start")
     if not w:
         return None
@@ -175,6 +218,10 @@ def _warm_start(rec: dict, out: pathlib.Path, say) -> str | None:
         ckpt = runs_lib.latest_checkpoint(src)
         say(f"warm start: {rel(ckpt)}, the replayed {w['run']}'s final checkpoint")
         return str(ckpt)
+    if strict:
+        raise RecipeError(f"{rec['run']}: a seeded replay warm-starts from its own replay of "
+                          f"{w['run']} at step {w['step']:,} ({rel(kept)}), which is not there "
+                          f"yet: replay {w['run']}'s recipe with the same seed first")
     path = REPO / w["path"]
     if not (path / runs_lib.PROGRESS).is_file():
         raise RecipeError(f"{rec['run']}: its warm start {w['path']} is not a checkpoint")
@@ -182,13 +229,17 @@ def _warm_start(rec: dict, out: pathlib.Path, say) -> str | None:
     return str(path)
 
 
-def _continue(rec: dict, target: pathlib.Path, out: pathlib.Path, say) -> None:
+def _continue(rec: dict, target: pathlib.Path, out: pathlib.Path, say, strict: bool = False) -> None:
     """A continuation starts from its source's replay under `out` (its final checkpoint), else
-    from the committed checkpoint the recipe names, copied with the source's logs."""
+    (unless `strict`) from the committed checkpoint the recipe names, copied with the source's
+    logs."""
     c = rec["continues"]
     src = out / c["run"]
     if (src / DONE).is_file():
         ckpt, logs = runs_lib.latest_checkpoint(src), src
+    elif strict:
+        raise RecipeError(f"{rec['run']}: a seeded replay continues its own replay of {c['run']} "
+                          f"under {rel(out)}, which has not finished: replay it first")
     else:
         ckpt, logs = REPO / c["path"], source_dir(c["run"])
     say(f"{rec['run']} continues {c['run']}: starting from {rel(ckpt)}")
@@ -199,13 +250,17 @@ def _continue(rec: dict, target: pathlib.Path, out: pathlib.Path, say) -> None:
             shutil.copy2(logs / name, target / name)
 
 
-def replay(run_dir, out, mains: dict, say=print) -> int:
+def replay(run_dir, out, mains: dict, say=print, seed: int | None = None) -> int:
     """Replays a run's recipe from scratch into <out>/<run>/: each segment one call of
     `mains[command](argv)` (train.py's or dqn.py's main). Resumes where an earlier replay stopped;
-    keeps a copy of each checkpoint another recipe warm-starts from under <run>/warm_start/."""
+    keeps a copy of each checkpoint another recipe warm-starts from under <run>/warm_start/.
+    With `seed`, the recipe's --seed is replaced and its sources must be replays (module doc)."""
     run_dir, out = pathlib.Path(run_dir), pathlib.Path(out)
     rec = load(run_dir)
+    strict = seed is not None
     target = out / rec["run"]
+    if strict:
+        _restore_replay(target, say)
     if (target / DONE).is_file():
         say(f"{rel(target)}: {rec['run']} was replayed already ({DONE}); remove it to replay again")
         return 0
@@ -214,10 +269,19 @@ def replay(run_dir, out, mains: dict, say=print) -> int:
     flags_extra = {}
     with runs_lib.no_committed_copy():
         if rec.get("continues") and runs_lib.latest_checkpoint(target) is None:
-            _continue(rec, target, out, say)
-        warm = _warm_start(rec, out, say)
+            _continue(rec, target, out, say, strict)
+        warm = _warm_start(rec, out, say, strict)
         if warm:
             flags_extra["--warm-start"] = warm
+        if strict:
+            flags_extra["--seed"] = seed
+            if rec.get("suite"):
+                missing = [r for r in rec["suite"] if not (out / r / DONE).is_file()]
+                if missing:
+                    raise RecipeError(f"{rec['run']}: a seeded replay trains beside its own "
+                                      f"replays of {', '.join(missing)} under {rel(out)}, which "
+                                      f"have not finished: replay them first")
+                flags_extra["--suite-runs"] = str(out)
         segs = segments(rec, keep)
         for i, seg in enumerate(segs, 1):
             if _step(target) >= seg["until"]:
@@ -232,7 +296,7 @@ def replay(run_dir, out, mains: dict, say=print) -> int:
             if seg["until"] in keep:
                 _keep(target, seg["until"], say)
     (target / DONE).write_text(json.dumps({
-        "recipe": rel(run_dir / RECIPE), "step": _step(target),
+        "recipe": rel(run_dir / RECIPE), "step": _step(target), "seed": seed,
         "recorded_final_step": rec["final_step"]}, indent=2) + "\n")
     say(f"[recipe {rec['run']}] replayed to step {_step(target):,} (the committed run: "
         f"{rec['final_step']:,}) in {rel(target)}")
@@ -265,3 +329,95 @@ def _flat(d: dict, prefix: str = "") -> dict:
         else:
             out[f"{prefix}{k}"] = v
     return out
+
+
+def _ready(rec: dict, out: pathlib.Path) -> bool:
+    """Whether a recipe's sources are replayed far enough under `out` for it to start."""
+    w, c = rec.get("warm_start"), rec.get("continues")
+    if c and not (out / c["run"] / DONE).is_file():
+        return False
+    if any(not (out / r / DONE).is_file() for r in rec.get("suite", [])):
+        return False
+    if w:
+        src = out / w["run"]
+        return ((src / "warm_start" / f"{w['step']:012d}" / runs_lib.PROGRESS).is_file()
+                or (src / DONE).is_file())
+    return True
+
+
+def _last_progress_line(log: pathlib.Path) -> str:
+    """The newest progress line ("[policy/init] step ...") of a replay's log, shortened."""
+    if not log.is_file():
+        return "starting"
+    lines = [ln for ln in log.read_text(errors="replace").splitlines() if "] step " in ln]
+    return lines[-1].strip()[:160] if lines else "compiling"
+
+
+def replay_all(run_dirs, runs, say=print, seed: int | None = None, jobs: int = 1,
+               mains: dict | None = None, poll_s: float = 30.0, report_s: float = 600.0) -> int:
+    """Replays recipes, sources first, into `replay_dir(runs, seed)`. With `jobs` 1, one after
+    another in this process (`mains`: each command's main); with more, up to `jobs` at a time,
+    each in its own process (`python -m biped_switch.train --recipe RUN`, one mujoco thread
+    each, its output in <out>/<run>/replay.log), a recipe starting once its sources have
+    replayed to its warm-start step; a status line per running replay every `report_s`."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    out = replay_dir(runs, seed)
+    todo = order(run_dirs)
+    if seed is not None:
+        for d in todo:
+            _restore_replay(out / load(d)["run"], say)
+    if jobs <= 1:
+        for d in todo:
+            if code := replay(d, out, mains, say, seed):
+                return code
+        say(f"replayed into {rel(out)}/; evaluate with --runs {rel(out)}")
+        return 0
+    recs = {d: load(d) for d in todo}
+    running, failed, last_report = {}, [], 0.0
+    env = {**os.environ, "BIPED_SWITCH_NTHREAD": "1"}
+    while todo or running:
+        for d, (proc, log) in list(running.items()):
+            if proc.poll() is not None:
+                del running[d]
+                say(f"[train-all] {recs[d]['run']}: "
+                    f"{'done' if proc.returncode == 0 else f'failed (exit {proc.returncode})'}; "
+                    f"log {rel(log)}")
+                if proc.returncode:
+                    failed.append(recs[d]["run"])
+        for d in [d for d in todo if _ready(recs[d], out)]:
+            if len(running) >= jobs:
+                break
+            log = out / recs[d]["run"] / "replay.log"
+            log.parent.mkdir(parents=True, exist_ok=True)
+            cmd = [sys.executable, "-m", "biped_switch.train", "--recipe", str(d), "--out",
+                   str(runs)] + ([] if seed is None else ["--seed", str(seed)])
+            running[d] = (subprocess.Popen(cmd, stdout=log.open("a"), stderr=subprocess.STDOUT,
+                                           env=env), log)
+            todo.remove(d)
+            say(f"[train-all] {recs[d]['run']}: started ({' '.join(cmd[1:])}); log {rel(log)}")
+        if todo and not running:
+            say(f"[train-all] cannot start {[recs[d]['run'] for d in todo]}: their sources did "
+                f"not replay (failed: {failed})")
+            return 1
+        if running and time.time() - last_report >= report_s:
+            last_report = time.time()
+            for d, (_, log) in running.items():
+                say(f"[train-all] {recs[d]['run']}: {_last_progress_line(log)}")
+        time.sleep(poll_s if running else 0)
+    if failed:
+        say(f"[train-all] failed: {', '.join(failed)}")
+        return 1
+    say(f"replayed into {rel(out)}/; evaluate with --runs {rel(out)}")
+    return 0
+
+
+def commit_replays(run_dirs, runs, seed: int) -> list[pathlib.Path]:
+    """`commit_replay` of each recipe's replay under `replay_dir(runs, seed)` that has a
+    checkpoint."""
+    out = replay_dir(runs, seed)
+    targets = [out / load(d)["run"] for d in run_dirs]
+    return [commit_replay(t) for t in targets if runs_lib.latest_checkpoint(t) is not None]

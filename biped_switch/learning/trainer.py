@@ -27,6 +27,7 @@ here: one host).
 
 from __future__ import annotations
 
+import json
 import pathlib
 import time
 
@@ -40,14 +41,13 @@ from biped_switch.learning import ppo
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import TRAIN_TRACK_SEED
+from biped_switch.names import TRAIN_KINDS  # every behaviour's, kinds outside the paper's too
 from biped_switch.paths import rel
-from biped_switch.learning.policies import POLICY_NAMES
 from biped_switch.simulation.rollout import rollout, summarize
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
 
-# "mixed": the end-to-end baseline (Table II's "End-to-end"), one policy trained on multi-artifact tracks with the
-# same reward and guided curriculum
-TRAIN_KINDS = POLICY_NAMES + ("mixed",)
+# TRAIN_KINDS' "mixed": the end-to-end baseline (Table II's "End-to-end"), one policy trained on
+# multi-artifact tracks with the same reward and guided curriculum
 
 
 def train_env(cfg) -> env_lib.BipedEnv:
@@ -108,7 +108,9 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     whole-episode rollout of the deterministic policy measures the mean reward per step and the
     fall rate, `curriculum.update` moves a notch (forward on a milestone, back when most fall),
     and a checkpoint is written.
-    `on_restore(train_state)` is called with the state a resume restored (a hook for tests)."""
+    `on_restore(train_state)` is called with the state a resume restored (a hook for tests).
+    One function: the run's loop (resume, chunks, checks, checkpoints) read top to bottom; the
+    curriculum's state and end are records of curriculum.py."""
     run_dir.mkdir(parents=True, exist_ok=True)
     runs_lib.restore_committed(run_dir, print_fn)
     writer = jax.process_index() == 0  # multi-host: one process writes
@@ -118,8 +120,8 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     env = env_fn(cfg)
     trainer = ppo.make_train(cfg, env)
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
-    step, wall_s, compile_s, done = 0, 0.0, None, False
-    high, high_step, end, held = 0.0, 0, None, None  # the push stage's plateau (curriculum.py)
+    step, wall_s, compile_s = 0, 0.0, None
+    fin = curr_lib.CurriculumEnd()  # the curriculum's end and the push plateau (curriculum.py)
     cs = curr_lib.CurriculumState(**cfg.start)
     newest = runs_lib.latest_checkpoint(run_dir)
     restored, ckpt = ckpt_lib.load_newest_intact(run_dir, lambda c: restore(c, ts), print_fn,
@@ -132,12 +134,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
             on_restore(ts)
         step, wall_s = prog["step"], prog["wall_s"]
         cs = curr_lib.CurriculumState.from_dict(prog["curriculum"])
-        done = bool(prog.get("curriculum_done", False))
-        end, held = prog.get("curriculum_end"), prog.get("push_held")
-        if "push_high" in prog:
-            high, high_step = float(prog["push_high"]), int(prog["push_high_step"])
-        else:  # checkpoints saved before the push plateau was recorded
-            high, high_step = curr_lib.push_high_from_rows(logger.rows(until=step))
+        fin = curr_lib.CurriculumEnd.from_progress(prog, lambda: logger.rows(until=step))
         # a resumed run keeps the provenance of its start (the warm-start checkpoint, if any)
         cfg.warm_start = cfg.warm_start or runs_lib.read_config(run_dir).get("warm_start", "")
         logger.drop_after(step)
@@ -162,7 +159,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
     rng, k = jax.random.split(rng)
     envs = trainer.reset_envs(k, curr_array(cs))
     progress, chunks = {}, 0
-    if done and cfg.stop_when_done:
+    if fin.done and cfg.stop_when_done:
         print_fn(f"[{cfg.policy}/{cfg.init}] the curriculum finished by step {step:,}: nothing to "
                  f"train (--keep-training trains on to --total-steps)")
         return prog
@@ -218,29 +215,17 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         eval_s = time.perf_counter() - t_eval
         new_cs = curr_lib.update(cs, ev["reward_per_step"], ev["progress_frac"], cfg.curriculum,
                                  fell_frac=ev["fell"])
-        # the last stage ends like the others: its value at its end and one more milestone there
-        done = done or bool(int(cs.stage) == 2 and float(cs.push_scale) >= 1.0 - 1e-6
-                            and curr_lib.milestone(ev["reward_per_step"], ev["progress_frac"],
-                                                   cfg.curriculum, fell_frac=ev["fell"]))
         new_cs = curr_lib.CurriculumState(*(np.asarray(v).item() for v in new_cs))
-        if done and end is None:
-            end, held = "full pushes", 1.0
-        high, high_step = curr_lib.push_high_update(high, high_step, int(new_cs.stage),
-                                                    float(new_cs.push_scale), step)
-        if not done and curr_lib.push_plateaued(high, high_step, step, cfg.curriculum):
-            done, end, held = True, "push plateau", curr_lib.push_held(high, cfg.curriculum)
-            print_fn(f"[{cfg.policy}/{cfg.init}] the push stage has not risen above {high:.2f} "
-                     f"for {step - high_step:,} env steps (push_plateau_steps "
-                     f"{int(cfg.curriculum.push_plateau_steps):,}): the curriculum ends on a "
-                     f"plateau, holding push {held:.2f}")
+        fin, msg = fin.after_check(cs, new_cs, ev, step, cfg.curriculum)
+        if msg:
+            print_fn(f"[{cfg.policy}/{cfg.init}] {msg}")
         wall_s += train_s + eval_s
         progress = {"step": step, "wall_s": wall_s, "chunk_train_s": train_s, "chunk_eval_s": eval_s,
                     "env_steps_per_s": (step - chunk_start) / train_s, "compile_s": compile_s, "eval": ev,
                     "curriculum_before": cs.as_dict(), "curriculum": new_cs.as_dict(),
                     "backend": env.backend, "device": str(jax.devices()[0]),
                     "n_devices": jax.device_count(), "total_steps": int(cfg.total_timesteps),
-                    "curriculum_done": done, "curriculum_end": end, "push_held": held,
-                    "push_high": high, "push_high_step": high_step, "warm_start": cfg.warm_start}
+                    **fin.as_progress(), "warm_start": cfg.warm_start}
         path = run_dir / "checkpoints" / f"{step:012d}"
         if writer:
             ckpt_lib.save_ppo(run_dir, step, ts, progress)
@@ -262,7 +247,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
             envs = trainer.reset_envs(k, curr_array(new_cs))
         cs = new_cs
         chunks += 1
-        if done and cfg.stop_when_done:
+        if fin.done and cfg.stop_when_done:
             print_fn(f"[{cfg.policy}/{cfg.init}] the curriculum finished at step {step:,} "
                      f"({wall_s / 3600:.2f} h): training stops")
             break
@@ -297,6 +282,15 @@ def probe_guides(run_dir: pathlib.Path, guide_levels, seed: int = 0) -> dict:
     return {"checkpoint": str(ckpt), "step": prog["step"], "trained_at": cs.as_dict(),
             "seed": seed, "n_envs": int(cfg.eval.n_envs), "horizon_steps": int(cfg.eval.horizon_steps),
             "rows": rows}
+
+
+def probe_guides_report(run_dir: pathlib.Path, levels_csv: str, seed: int = 0) -> str:
+    """`probe_guides` of a run (its committed copy on a fresh clone) at the comma-separated guide
+    levels, written to <run>/probe_guides.json; returns its Markdown."""
+    runs_lib.restore_committed(run_dir)
+    doc = probe_guides(run_dir, [float(g) for g in levels_csv.split(",")], seed)
+    (run_dir / "probe_guides.json").write_text(json.dumps(doc, indent=2))
+    return probe_markdown(doc)
 
 
 def probe_markdown(doc: dict) -> str:

@@ -9,14 +9,15 @@ import pathlib
 import numpy as np
 
 from biped_switch.names import ARTIFACT_KINDS, DETECTOR_CLASSES
+from biped_switch.kinds import class_of_code
 
-CLASSES = DETECTOR_CLASSES  # class c = oracle kind + 1
+CLASSES = DETECTOR_CLASSES  # the class of each oracle kind: kinds.CLASS_OF_CODE
 
 
 def confusion(true_kind: np.ndarray, kind: np.ndarray) -> np.ndarray:
     """(4, 4) counts, rows = the oracle's class (none, jumps, gaps, stairs), columns = predicted."""
     m = np.zeros((len(CLASSES), len(CLASSES)), np.int64)
-    np.add.at(m, (true_kind + 1, kind + 1), 1)
+    np.add.at(m, (class_of_code(true_kind, np), class_of_code(kind, np)), 1)
     return m
 
 

@@ -13,6 +13,7 @@ import numpy as np
 from biped_switch import paper
 from biped_switch.reports import provenance as prov
 from biped_switch.names import POLICY_NAMES
+from biped_switch.reports import style
 import pathlib
 import textwrap
 
@@ -112,7 +113,7 @@ def plot_switch_distances(by_method: dict, path=None, kind: str = "gaps"):
                 continue
             b = np.array(c["lost_by_ahead"], float).reshape(-1, 4)
             x = b[:, 0] + (i + 0.5) * width  # side by side within each 0.1 m bin
-            color = f"C{i}"
+            color = style.method_colour(m, f"C{i}")
             ax.bar(x, b[:, 2] / c["n"], width=width, color=color, alpha=0.45,
                    label=f"{m} (n {c['n']:,}, lost {c['lost_pct']:.0f}%)")
             lost_ax.plot(x, 100 * b[:, 3] / np.maximum(b[:, 2], 1), "D", color=color, ms=5,
@@ -133,10 +134,6 @@ def plot_switch_distances(by_method: dict, path=None, kind: str = "gaps"):
     return None
 
 
-POLICY_COLOURS = {"walk": "tab:blue", "jumps": "tab:orange", "gaps": "tab:purple",
-                  "stairs": "tab:brown"}
-
-
 def switch_success_figure(tables: dict, title: str = "", smooth_bins: int = 5):
     """The paper's Fig. 4b: success of switching against distance to the artifact, per (source ->
     target) pair, one panel per target: each 1 cm bin's success rate (dots, sized by its points),
@@ -151,7 +148,7 @@ def switch_success_figure(tables: dict, title: str = "", smooth_bins: int = 5):
             cnt = t["count"][j]
             if name == target or cnt.sum() == 0:
                 continue
-            c = POLICY_COLOURS.get(name)
+            c = style.policy_colour(name)
             ax.scatter(t["bins_m"] + 0.005, 100 * t["rate"][j], s=4 + 20 * cnt / cnt.max(),
                        color=c, alpha=0.25, lw=0)
             ax.plot(t["bins_m"] + 0.005, smoothed_success_pct(t["rate"][j], cnt, smooth_bins),

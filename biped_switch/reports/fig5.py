@@ -6,6 +6,7 @@ import pathlib
 import numpy as np
 from biped_switch.config import default_switching_config
 from biped_switch.names import ARTIFACT_KINDS, FIG5_KEYS, POLICY_NAMES
+from biped_switch.reports import style
 
 
 def load_trial(path) -> dict:
@@ -75,13 +76,11 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
     kind = rec["det_kind"][:n].astype(int)
     fig, (ax0, axp, ax1) = plt.subplots(3, 1, figsize=(13, 7.5), sharex=True,
                                         gridspec_kw={"height_ratios": [3, 0.6, 3]})
-    colours = {"walk": "tab:blue", "jumps": "tab:orange", "gaps": "tab:purple", "stairs": "tab:brown",
-               "setup_gaps": "tab:red", "setup_stairs": "tab:pink", "setup_jumps": "tab:olive"}
     for k, name in enumerate(ARTIFACT_KINDS):
         p = rec["est_probs"][:n, k]
         if not score:  # a score exists only for the detected target: no faint lines
-            ax0.plot(t, p, color=colours[name], lw=0.5, alpha=0.25)
-        ax0.plot(t, np.where(kind == k, p, np.nan), color=colours[name], lw=1.5,
+            ax0.plot(t, p, color=style.KIND_COLOURS[name], lw=0.5, alpha=0.25)
+        ax0.plot(t, np.where(kind == k, p, np.nan), color=style.KIND_COLOURS[name], lw=1.5,
                  label=f"into {name}" if score else f"E_{name}")
     new_det = np.flatnonzero((kind >= 0) & (np.r_[-1, kind[:-1]] != kind))
     switches = np.flatnonzero(rec["switched"][:n] > 0.5)
@@ -109,8 +108,8 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
     for j, name in enumerate(names):
         on = active == j
         if on.any():
-            axp.fill_between(t, 0, 1, where=on, step="mid", color=colours[name], alpha=0.7,
-                             label=name, lw=0)
+            axp.fill_between(t, 0, 1, where=on, step="mid", color=style.policy_colour(name),
+                             alpha=0.7, label=name, lw=0)
     axp.set_yticks([])
     axp.set_ylabel("active", fontsize=8)
     axp.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))

@@ -67,8 +67,8 @@ def table1_notes(rows: list[dict]) -> list[str]:
 def paper_row(r: dict):
     """The paper's (% distance, % success) of a Table I row's policy and init, ("-", "-") when the
     paper has none."""
-    ref = paper.TABLE1.get(r["policy"])
-    return ((ref[0], ref[1]) if r["init"] == "stand" else (ref[2], ref[3])) if ref else ("-", "-")
+    ref = paper.TABLE1.get(r["policy"], {}).get(r["init"])
+    return (ref.distance_pct, ref.success_pct) if ref else ("-", "-")
 
 
 def table1_rows(doc: dict):

@@ -7,6 +7,7 @@ import numpy as np
 from biped_switch import paper
 from biped_switch.reports import provenance as prov
 from biped_switch.names import ARTIFACT_KINDS, HEURISTICS
+from biped_switch.kinds import KIND, POLICY_NAMES, policy_for
 from biped_switch.config import default_env_config
 from biped_switch.stats import dist_success_cells, pct_ci, pct_ci_cell
 
@@ -107,7 +108,7 @@ def policy_on_falls(tracks, progress_frac, fell, fail_kind, active_at_start,
         on = int(active_at_start[i][k])
         if on < 0:
             cell["before_start"] += 1
-        elif on != ARTIFACT_KINDS.index(kind) + 1:
+        elif on != policy_for(kind):
             cell["wrong_policy"] += 1
     return out
 
@@ -296,39 +297,43 @@ def claims_markdown(claims: list[dict]) -> str:
 
 
 def table2_markdown(rows: list[dict]) -> str:
-    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | % gap fail (CI) | "
-             "% jump fail (CI) | % stair fail (CI) | paper (dist. / success / gap / jump / stair) |",
-             "|---|---|---|---|---|---|---|---|"]
+    fails = [KIND[k].singular for k in paper.TABLE2_FAIL_ORDER]
+    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | "
+             + "".join(f"% {s} fail (CI) | " for s in fails)
+             + f"paper (dist. / success / {' / '.join(fails)}) |",
+             "|---" * (5 + len(fails)) + "|"]
     for r in rows:
         ref = paper.TABLE2.get(r["method"])
         f = r["fail_on"]
         lines.append(
             f"| {r['method']} | {r['n']} | {dist_success_cells(r)} | "
             + " | ".join(pct_ci(f[k], r["fail_ci"][k]) for k in paper.TABLE2_FAIL_ORDER) + " | "
-            + (" / ".join(f"{v}" for v in ref) if ref else "-") + " |")
+            + (" / ".join(f"{v}" for v in ref.cells()) if ref else "-") + " |")
     return "\n".join(lines)
 
 
 def table2_rows(doc: dict, with_paper_only: bool = True):
     """(headers, rows) of a table2.json as the notebook prints it, each method beside the paper's
     row; with `with_paper_only`, the paper's methods not run here as "not run" rows."""
-    headers = ["method", "init", "trials", "% dist. (95% CI)", "% success (95% CI)", "% gap fail",
-               "% jump fail", "% stair fail", "switches/trial",
-               "paper dist. / success / gap / jump / stair"]
+    order = paper.TABLE2_FAIL_ORDER
+    fails = [KIND[k].singular for k in order]
+    headers = ["method", "init", "trials", "% dist. (95% CI)", "% success (95% CI)",
+               *(f"% {s} fail" for s in fails), "switches/trial",
+               f"paper dist. / success / {' / '.join(fails)}"]
     rows, seen = [], set()
     for r in doc["rows"]:
         f, p = r["fail_on"], paper.TABLE2.get(r["method"])
         seen.add(r["method"])
         rows.append([r["method"], r["init"], r["n"], pct_ci_cell(r["distance_pct"], r.get("distance_ci")),
-                     pct_ci_cell(r["success_pct"], r.get("success_ci")), f"{f['gaps']:.1f}",
-                     f"{f['jumps']:.1f}", f"{f['stairs']:.1f}",
+                     pct_ci_cell(r["success_pct"], r.get("success_ci")),
+                     *(f"{f[k]:.1f}" for k in order),
                      f"{r.get('switches_per_trial', math.nan):.2f}",
-                     " / ".join(f"{v}" for v in p) if p else "-"])
+                     " / ".join(f"{v}" for v in p.cells()) if p else "-"])
     if with_paper_only:
         for m, p in paper.TABLE2.items():
             if m not in seen:
-                rows.append([m, "-", "not run", "-", "-", "-", "-", "-", "-",
-                             " / ".join(f"{v}" for v in p)])
+                rows.append([m, "-", "not run", "-", "-", *["-"] * len(order), "-",
+                             " / ".join(f"{v}" for v in p.cells())])
     return headers, rows
 
 
@@ -350,7 +355,7 @@ def table2_provenance(doc: dict, path, print_fn=print) -> list[str]:
         srcs = tuple(r.get("policies") or ())
         if srcs and (r["init"], srcs) not in seen:
             seen.add((r["init"], srcs))
-            print_fn(f"  policies ({r['init']} init), walk/jumps/gaps/stairs:")
+            print_fn(f"  policies ({r['init']} init), {'/'.join(POLICY_NAMES)}:")
             for src in srcs:
                 print_fn(f"    {src}")
             subs[r["init"]] = [x.split(":")[0].removeprefix("stand-in for ")

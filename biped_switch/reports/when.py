@@ -7,6 +7,8 @@ import pathlib
 
 import numpy as np
 
+from biped_switch.kinds import KIND
+from biped_switch.paper import TABLE2_FAIL_ORDER
 from biped_switch.stats import bin_counts
 
 PREDICTORS = (("learned", "learned (ours)"), ("table", "(target, source, 5 cm) table"),
@@ -67,15 +69,16 @@ def tuning_markdown(doc: dict) -> str:
              f"{doc['chosen']['later_from']}, band {doc['chosen']['band_tol']:g}, margin "
              f"{doc['chosen']['margin']:g}, {doc['chosen']['persist_steps']} step(s).", "",
              "| later P from | band | margin | run length [steps] | % success (95% CI) | "
-             "% fail gap / jump / stair |", "|---|---|---|---|---|---|"]
+             f"% fail {' / '.join(KIND[k].singular for k in TABLE2_FAIL_ORDER)} |",
+             "|---|---|---|---|---|---|"]
     for r in doc["rows"]:
         lo, hi = r["success_ci"]
         f = r["fail_on"]
         lines.append(f"| {r['later_from']} | {r['band_tol']:g} | {r['margin']:+.2f} | "
                      f"{r['persist_steps']} | "
                      f"{r['success_pct']:.1f} "
-                     f"({lo:.1f}-{hi:.1f}) | {f['gaps']:.1f} / {f['jumps']:.1f} / "
-                     f"{f['stairs']:.1f} |")
+                     f"({lo:.1f}-{hi:.1f}) | "
+                     + " / ".join(f"{f[k]:.1f}" for k in TABLE2_FAIL_ORDER) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -26,7 +26,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from biped_switch.simulation.terrain import ARTIFACT_KINDS
+from biped_switch.kinds import ALL_ARTIFACT_KINDS
 
 PolicyFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs batch, rng) -> action batch
 # act(carry, state, live, key) -> (action batch, carry, aux): `state` the batch's env states
@@ -158,7 +158,7 @@ def summarize(result: dict, horizon: int) -> dict:
     out["reward_per_step"] = float(jnp.mean(result["reward"]) / horizon)
     if "fail_kind" in result:  # a mean of kind codes says nothing: the share of episodes that
         fail, fell = jnp.asarray(result["fail_kind"]), jnp.asarray(result["fell"]) > 0
-        for code, kind in enumerate(ARTIFACT_KINDS):  # fell at each kind, and on plain ground
+        for code, kind in enumerate(ALL_ARTIFACT_KINDS):  # fell at each kind, and on plain ground
             out[f"fell_at/{kind}"] = float(jnp.mean(fell & (fail == code)))
         out["fell_at/flat"] = float(jnp.mean(fell & (fail == -1)))
     return out

@@ -5,12 +5,16 @@ Each segment's length and top height are affine in `difficulty`, so one `layout(
 on the host (numpy) and inside jitted code (jnp) when a curriculum raises the difficulty: a new
 difficulty never recompiles and never needs a new track.
 
-Artifacts (n = 4..9 segments each, sizes at difficulty 1):
+Artifacts (n = 4..9 segments each, sizes at difficulty 1; kinds.py holds the kind records, BUILDERS
+below one segment builder per artifact kind):
   stairs  n steps up then down, rise 0.17 m, run U(0.36, 0.44) m; step k has height 0.17 * min(k, n+1-k)
   jumps   n segments alternating a block 0.3 m high and 0.16 m long with a flat U(0.36, 0.44) m,
           starting with a block (the robot steps or jumps onto and off each block)
   gaps    n segments alternating a 0.7 m hole with a flat platform U(0.36, 0.44) m, starting with a hole
-Difficulty d in [0, 1] scales stair rise, block height and gap length by d (d = 0 is flat ground).
+  stones  n segments alternating a 0.45 m hole with a stone 0.3 m long, its top 0.15 m up, starting
+          with a hole (kind record paper=False: outside the paper's suite, issue 57)
+Difficulty d in [0, 1] scales stair rise, block height, gap length, stone height and the holes
+between stones by d (d = 0 is flat ground).
 Every artifact has 3 flats U(0.36, 0.44) m (>= 1.08 m >= 0.9 m) before it; the track starts 1 m
 behind the robot (x = 0) and ends with >= 2 m of flat.
 
@@ -25,11 +29,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from biped_switch import kinds as kinds_lib
 from biped_switch.config import default_terrain_config
-
-from biped_switch.names import ARTIFACT_KINDS, TERRAIN_KINDS as KINDS  # noqa: F401  (re-exported)
-
-NO_ARTIFACT = -1
+from biped_switch.kinds import ARTIFACT_KINDS, NO_ARTIFACT, TERRAIN_KINDS as KINDS  # noqa: F401
 
 # Segment table columns: length = LEN0 + LEN_D * d, top z = TOP_D * d, SOLID = 1 box / 0 hole.
 LEN0, LEN_D, TOP_D, SOLID = range(4)
@@ -87,7 +89,7 @@ class Track:
     x_origin_m: float
     thickness_m: float
     segments: np.ndarray  # (S, 4) segment table
-    artifact_codes: np.ndarray  # (A,) index into ARTIFACT_KINDS
+    artifact_codes: np.ndarray  # (A,) artifact code (index into kinds.ALL_ARTIFACT_KINDS)
     artifact_segments: np.ndarray  # (A, 2) first and last segment of each artifact (inclusive)
     finish_after_m: float
 
@@ -110,7 +112,8 @@ class Track:
     def artifacts(self) -> list[tuple[str, float, float]]:
         """(kind, start x [m], end x [m]) of each artifact, in order along the track."""
         a0, a1, _ = self._extents()
-        return [(ARTIFACT_KINDS[c], float(x0), float(x1))
+        names = kinds_lib.ALL_ARTIFACT_KINDS
+        return [(names[c], float(x0), float(x1))
                 for c, x0, x1 in zip(self.artifact_codes, a0, a1)]
 
     @property
@@ -136,8 +139,8 @@ class Track:
 
 
 def _check_kind(kind: str) -> None:
-    if kind not in KINDS:
-        raise ValueError(f"unknown terrain kind {kind!r}; expected one of {KINDS}")
+    if kind not in kinds_lib.KIND:
+        raise ValueError(f"unknown terrain kind {kind!r}; expected one of {tuple(kinds_lib.KIND)}")
 
 
 def check_difficulty(difficulty: float) -> None:
@@ -154,18 +157,51 @@ def _flats(rng: np.random.Generator, cfg, min_total_m: float) -> list[list[float
     return segs
 
 
+def _flat(rng: np.random.Generator, cfg) -> list[float]:
+    return [rng.uniform(cfg.flat_min_m, cfg.flat_max_m), 0.0, 0.0, 1.0]
+
+
+def _stairs(rng: np.random.Generator, cfg, n: int) -> list[list[float]]:
+    return [[rng.uniform(cfg.flat_min_m, cfg.flat_max_m), 0.0,
+             cfg.stair_rise_m * min(k, n + 1 - k), 1.0] for k in range(1, n + 1)]
+
+
+def _jumps(rng: np.random.Generator, cfg, n: int) -> list[list[float]]:
+    return [[cfg.step_length_m, 0.0, cfg.step_height_m, 1.0] if i % 2 == 0 else _flat(rng, cfg)
+            for i in range(n)]
+
+
+def _gaps(rng: np.random.Generator, cfg, n: int) -> list[list[float]]:
+    return [[0.0, cfg.gap_length_m, 0.0, 0.0] if i % 2 == 0 else _flat(rng, cfg)
+            for i in range(n)]
+
+
+def _stones(rng: np.random.Generator, cfg, n: int) -> list[list[float]]:
+    """Stepping stones: a hole, then a raised stone, alternating (the robot must place each foot
+    on a short, raised top; neither the gaps' level platforms nor the jumps' blocks on flats)."""
+    return [[0.0, cfg.stone_hole_m, 0.0, 0.0] if i % 2 == 0
+            else [cfg.stone_length_m, 0.0, cfg.stone_height_m, 1.0] for i in range(n)]
+
+
+# Each artifact kind's segment builder: (rng, terrain config, n segments) -> n segment rows, its
+# sizes read from config.py's default_terrain_config.
+BUILDERS = {"jumps": _jumps, "gaps": _gaps, "stairs": _stairs, "stones": _stones}
+
+
+def check_builders(builders=None, artifact_kinds=None) -> None:
+    """Raises unless every artifact kind of the records has a builder and every builder a kind."""
+    builders = BUILDERS if builders is None else builders
+    names = set(kinds_lib.ALL_ARTIFACT_KINDS if artifact_kinds is None else artifact_kinds)
+    if set(builders) != names:
+        raise ValueError(f"segment builders {sorted(builders)} != artifact kinds {sorted(names)}")
+
+
+check_builders()
+
+
 def _artifact(rng: np.random.Generator, cfg, kind: str) -> list[list[float]]:
     n = int(rng.integers(cfg.segments_min, cfg.segments_max + 1))
-    flat = lambda: [rng.uniform(cfg.flat_min_m, cfg.flat_max_m), 0.0, 0.0, 1.0]
-    if kind == "stairs":
-        return [[rng.uniform(cfg.flat_min_m, cfg.flat_max_m), 0.0,
-                 cfg.stair_rise_m * min(k, n + 1 - k), 1.0] for k in range(1, n + 1)]
-    if kind == "jumps":
-        return [[cfg.step_length_m, 0.0, cfg.step_height_m, 1.0] if i % 2 == 0 else flat()
-                for i in range(n)]
-    if kind == "gaps":
-        return [[0.0, cfg.gap_length_m, 0.0, 0.0] if i % 2 == 0 else flat() for i in range(n)]
-    raise ValueError(f"unknown artifact kind {kind!r}; expected one of {ARTIFACT_KINDS}")
+    return BUILDERS[kind](rng, cfg, n)
 
 
 def generate_track(seed: int, kind: str, difficulty: float = 1.0, cfg=None) -> Track:
@@ -173,15 +209,17 @@ def generate_track(seed: int, kind: str, difficulty: float = 1.0, cfg=None) -> T
     _check_kind(kind)
     check_difficulty(difficulty)
     cfg = cfg or default_terrain_config()
-    rng = np.random.default_rng([int(seed), KINDS.index(kind)])
+    rec = kinds_lib.KIND[kind]
+    rng = np.random.default_rng([int(seed), rec.stream])
 
-    def next_kind(prev):
-        if kind == "mixed":
-            choices = [k for k in ARTIFACT_KINDS if k != prev]
+    def next_kind(prev):  # one kind in the pool: always it; several: never the previous twice
+        if len(rec.artifacts) > 1:
+            choices = [k for k in rec.artifacts if k != prev]
             return choices[int(rng.integers(len(choices)))]
-        return kind
+        return rec.artifacts[0]
 
-    return _build_track(rng, cfg, kind, int(seed), difficulty, next_kind, cfg.n_artifacts)
+    return _build_track(rng, cfg, kind, int(seed), difficulty,
+                        next_kind if rec.artifacts else None, cfg.n_artifacts)
 
 
 def sequence_track(seed: int, kinds: Sequence[str], difficulty: float = 1.0, cfg=None) -> Track:
@@ -190,33 +228,35 @@ def sequence_track(seed: int, kinds: Sequence[str], difficulty: float = 1.0, cfg
     `generate_track`; `kinds` may not exceed the config's n_artifacts (the bank's padding)."""
     check_difficulty(difficulty)
     cfg = cfg or default_terrain_config()
-    bad = [k for k in kinds if k not in ARTIFACT_KINDS]
+    code = kinds_lib.ALL_ARTIFACT_CODE
+    bad = [k for k in kinds if k not in code]
     if bad or not kinds:
-        raise ValueError(f"sequence kinds must be a non-empty list of {ARTIFACT_KINDS}, got {list(kinds)}")
+        raise ValueError(f"sequence kinds must be a non-empty list of {tuple(code)}, got {list(kinds)}")
     if len(kinds) > cfg.n_artifacts:
         raise ValueError(f"{len(kinds)} kinds but the terrain config allows {cfg.n_artifacts} artifacts")
-    codes = [ARTIFACT_KINDS.index(k) for k in kinds]
-    rng = np.random.default_rng([int(seed), KINDS.index("mixed"), 1 + len(kinds), *codes])
+    codes = [code[k] for k in kinds]
+    rng = np.random.default_rng([int(seed), kinds_lib.KIND["mixed"].stream, 1 + len(kinds), *codes])
     it = iter(kinds)
     return _build_track(rng, cfg, "mixed", int(seed), difficulty, lambda prev: next(it), len(kinds))
 
 
 def _build_track(rng, cfg, kind: str, seed: int, difficulty: float, next_kind, n_artifacts: int
                  ) -> Track:
-    """The layout both track makers share; `next_kind(previous kind)` names each artifact."""
+    """The layout both track makers share; `next_kind(previous kind)` names each artifact (None:
+    flat ground where the artifacts would be, as long as an average artifact)."""
     width = float(rng.uniform(cfg.width_min_m, cfg.width_max_m))
     segs = _flats(rng, cfg, cfg.start_back_m + cfg.runup_m)
     codes, spans = [], []
     prev = None
     for _ in range(n_artifacts):
         segs += _flats(rng, cfg, cfg.flat_before_m)
-        if kind == "walk":
+        if next_kind is None:
             segs += _flats(rng, cfg, 0.5 * (cfg.segments_min + cfg.segments_max) * cfg.flat_min_m)
             continue
         art = next_kind(prev)
         first = len(segs)
         segs += _artifact(rng, cfg, art)
-        codes.append(ARTIFACT_KINDS.index(art))
+        codes.append(kinds_lib.ALL_ARTIFACT_CODE[art])
         spans.append((first, len(segs) - 1))
         prev = art
     segs += _flats(rng, cfg, cfg.goal_flat_m)
@@ -237,7 +277,7 @@ class TrackBank:
     segments: np.ndarray  # (B, C, 4); padding rows are zero-length holes
     width_m: np.ndarray  # (B,)
     x_origin_m: np.ndarray  # (B,)
-    artifact_codes: np.ndarray  # (B, A) ARTIFACT_KINDS index, NO_ARTIFACT for padding
+    artifact_codes: np.ndarray  # (B, A) artifact code, NO_ARTIFACT for padding
     artifact_segments: np.ndarray  # (B, A, 2)
     finish_after_m: np.ndarray  # (B,)
     thickness_m: float
@@ -285,9 +325,8 @@ def plot_track(track: Track, ax=None, path_xz: np.ndarray | None = None):
     from matplotlib.patches import Rectangle
 
     ax = ax or plt.subplots(figsize=(14, 3))[1]
-    colours = {"jumps": "tab:orange", "gaps": "tab:red", "stairs": "tab:green"}
     for k, a, b in track.artifacts:
-        ax.axvspan(a, b, color=colours[k], alpha=0.15, lw=0)
+        ax.axvspan(a, b, color=kinds_lib.KIND_COLOURS[k], alpha=0.15, lw=0)
         ax.text(0.5 * (a + b), 1.0, k, ha="center", va="bottom", fontsize=8)
     for xc, _, zc, hx, _, hz in track.boxes:
         ax.add_patch(Rectangle((xc - hx, zc - hz), 2 * hx, 2 * hz, fc="0.55", ec="0.25", lw=0.5))

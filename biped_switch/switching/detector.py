@@ -38,9 +38,10 @@ from biped_switch.config import default_detector_config
 from biped_switch.learning import checkpoints as ckpt_lib
 from biped_switch.learning import runs as runs_lib
 from biped_switch.names import DETECTOR_CLASSES
+from biped_switch.kinds import ARTIFACT_CODE, NO_ARTIFACT, class_of_code, code_of_class
 from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
 
-CLASSES = DETECTOR_CLASSES  # class c = oracle kind + 1
+CLASSES = DETECTOR_CLASSES  # the class of each oracle kind: kinds.CLASS_OF_CODE
 DATA_FIELDS = ("profile", "kind", "dist_m", "yaw", "episode", "step")  # what `collect` gives
 PROFILE_STATISTIC = "median"  # across the middle columns (`profile`): part of the data's identity
 
@@ -125,7 +126,8 @@ def decode(logits: jax.Array, dist: jax.Array) -> dict:
     """kind (-1: none in view) and the distance [m] to what starts ahead, kept when the class
     says none: the rollout's debounce may hold a kind through a one-step none, and then still
     needs the distance (switching.rules masks it where its kind is none)."""
-    return {"kind": jnp.argmax(logits, axis=-1).astype(jnp.int32) - 1, "dist_m": dist}
+    return {"kind": code_of_class(jnp.argmax(logits, axis=-1), jnp).astype(jnp.int32),
+            "dist_m": dist}
 
 
 def detect_fn(meta: dict, env):
@@ -156,15 +158,19 @@ def _cfg(meta: dict):
 def hand_rule(prof: np.ndarray, yaw: np.ndarray, rows_m: np.ndarray,
               cfg=None) -> tuple[np.ndarray, np.ndarray]:
     """(kind, dist_m) from profiles (N, rows) by a rule: the first change ahead (`first_change_m`)
-    names the artifact by its size: a drop of 0.5 m or more (no ground) a gap, a rise of 0.25 m or
-    more a jumps block (0.30 m), a smaller rise a stair (0.17 m), a smaller drop nothing."""
+    names the artifact by its size (`hand_gap_drop_m`, `hand_jump_rise_m`): a deep drop (no
+    ground) a gap, a high rise a jumps block, a smaller rise a stair, a smaller drop nothing."""
     cfg = cfg or default_detector_config()
     prof, rows_m = np.asarray(prof), np.asarray(rows_m)
     found, first = (np.asarray(v) for v in _first_change(jnp.asarray(prof), rows_m, cfg))
     rise = -2.0 * prof[np.arange(len(first)), first]  # [m]; a drop < 0
-    kind = np.where(rise <= -0.5, 1, np.where(rise >= 0.25, 0, np.where(rise > 0, 2, -1)))
+    code = ARTIFACT_CODE
+    kind = np.where(rise <= -cfg.hand_gap_drop_m, code["gaps"],
+                    np.where(rise >= cfg.hand_jump_rise_m, code["jumps"],
+                             np.where(rise > 0, code["stairs"], NO_ARTIFACT)))
     dist = np.where(found, rows_m[first] - 0.5 * (rows_m[1] - rows_m[0]), np.inf)
-    return np.where(found, kind, -1), np.asarray(along_track_m(jnp.asarray(dist), jnp.asarray(yaw)))
+    along_m = np.asarray(along_track_m(jnp.asarray(dist), jnp.asarray(yaw)))
+    return np.where(found, kind, NO_ARTIFACT), along_m
 
 
 # ----------------------------------------------------------------------- data
@@ -214,8 +220,8 @@ def train(data: dict, val: dict, cfg=None, print_fn=print) -> tuple[dict, dict]:
     cfg = cfg or default_detector_config()
     net = _net(cfg)
     rng = np.random.default_rng(cfg.seed)
-    x, c = data["profile"], (data["kind"] + 1).astype(np.int32)
-    vx, vc = val["profile"], (val["kind"] + 1).astype(np.int32)
+    x, c = data["profile"], class_of_code(data["kind"], np).astype(np.int32)
+    vx, vc = val["profile"], class_of_code(val["kind"], np).astype(np.int32)
     params = net.init(jax.random.PRNGKey(cfg.seed), jnp.zeros((1, x.shape[1])))
     opt = optax.adamw(cfg.learning_rate, weight_decay=cfg.weight_decay)
     opt_state = opt.init(params)

@@ -208,7 +208,9 @@ def train_estimator(data: dict, cfg=None, rng_seed: int | None = None, print_fn=
     (the heightmap in its stored dtype, float16 from the sweep). Progress goes to `print_fn` every
     `log_every` epochs. metrics: split sizes, final train/val loss, val accuracy (threshold 0.5), val
     ROC AUC, best_val_acc(_epoch), train_s, points_per_s, epochs and `history` (per-epoch train and
-    val loss, val accuracy, wall seconds). The params returned are those after the last epoch."""
+    val loss, val accuracy, wall seconds). The params returned are those after the last epoch.
+
+    One function: the jitted epoch closes over the split's shapes, read as split, epochs, metrics."""
     cfg = default_estimator_config() if cfg is None else cfg
     seed = int(cfg.seed if rng_seed is None else rng_seed)
     state = np.asarray(data["state"], np.float32)
@@ -320,7 +322,8 @@ def train_estimator(data: dict, cfg=None, rng_seed: int | None = None, print_fn=
 # ------------------------------------------------------------------------------- checkpoints
 
 
-def _jsonable(x):
+def jsonable(x):
+    """json.dumps' `default` for the numpy values and tuples in a model's meta and metrics."""
     if isinstance(x, (np.generic,)):
         return x.item()
     if isinstance(x, np.ndarray):
@@ -336,7 +339,7 @@ def save_estimator(path, params: dict, meta: dict) -> pathlib.Path:
     params = jax.tree.map(np.asarray, jax.device_get(params))
     path.parent.mkdir(parents=True, exist_ok=True)
     ckpt_lib.write_tree(path, params, save_args=orbax_utils.save_args_from_target(params))
-    (path / "meta.json").write_text(json.dumps(meta, indent=2, default=_jsonable))
+    (path / "meta.json").write_text(json.dumps(meta, indent=2, default=jsonable))
     return path
 
 

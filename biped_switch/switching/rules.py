@@ -2,7 +2,7 @@
 and the multi-policy rollout that applies them on multi-artifact tracks.
 
 Every method differs only in *when* it switches. The oracle detector names the next artifact once
-its start is within 0.9 m of the body; its policy (POLICY_INDEX = artifact code + 1) becomes the
+its start is within 0.9 m of the body; its policy (kinds.POLICY_OF_CODE) becomes the
 target, and the rule decides at each control step whether the active policy hands over now:
   random         at a distance U(0, 0.9) m before the artifact, drawn at detection (the same
                  thing as a random distance travelled after detection)
@@ -40,11 +40,13 @@ from biped_switch.config import default_switching_config
 from biped_switch.simulation.detection import debounce_step
 from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
+from biped_switch.kinds import POLICY_OF_CODE
 
 METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator")
 METHOD_INDEX = {m: i for i, m in enumerate(METHODS)}
 N_POLICIES = len(pol.POLICY_NAMES)
 N_TARGETS = len(ARTIFACT_KINDS)  # the switch targets: jumps, gaps, stairs
+_POLICY_OF_CODE = np.asarray(POLICY_OF_CODE, np.int32)  # the policy that crosses each artifact code
 
 
 class Rules(NamedTuple):
@@ -247,7 +249,7 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
     kind = jnp.maximum(det_kind, 0)
     new_art = seen & (det_index != ss.art_index)
     random_m = jnp.where(new_art, u01 * rules.switch_max_m, ss.random_m)
-    target = jnp.where(seen, kind + 1, ss.active)
+    target = jnp.where(seen, jnp.asarray(_POLICY_OF_CODE)[kind], ss.active)
     pending = target != ss.active
     lookup_m = rules.lookup_m[ss.active, kind]
     # a run of confident estimates, counted afresh for each artifact

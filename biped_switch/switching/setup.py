@@ -285,7 +285,7 @@ def setup_env(cfg, print_fn=print) -> SetupEnv:
     `env_fn`."""
     s = cfg.setup
     senv = make_setup_env(s, int(cfg.n_tracks), int(s.train_track_seed) + int(cfg.seed),
-                          backend=cfg.env.backend)
+                          runs=s.get("suite_runs", "runs"), backend=cfg.env.backend)
     wrong = {k: (senv.cfg[k], v) for k, v in cfg.env.items() if k != "backend" and senv.cfg[k] != v}
     if wrong:
         raise ValueError(f"the setup run's env {wrong} (run, suite) differs from the frozen suite's")
@@ -356,6 +356,8 @@ def main(argv=None) -> int:
                    help="artifacts of the full size range (4..9 segments each) and the usual "
                         "1 m finish: closer to Table II's tracks than the short training ones")
     p.add_argument("--out", default=None, help="write the result JSON here")
+    p.add_argument("--runs", default="runs", help="parent folder of the training runs of the "
+                   "frozen policies and of a --setup run name (then the committed models/)")
     a = p.parse_args(argv)
     from biped_switch.learning import runs as runs_lib
     cfg = default_setup_config(a.target)
@@ -366,7 +368,7 @@ def main(argv=None) -> int:
         cfg.setup.source_segments = cfg.setup.target_segments = (tc.segments_min, tc.segments_max)
         cfg.setup.finish_after_m = tc.finish_after_m
     t0 = time.perf_counter()
-    senv = make_setup_env(cfg.setup, a.n, int(cfg.setup.eval_track_seed))
+    senv = make_setup_env(cfg.setup, a.n, int(cfg.setup.eval_track_seed), runs=a.runs)
     if a.pool:
         build_pool(senv, int(cfg.setup.pool_horizon))
     if a.setup == "source":
@@ -376,7 +378,7 @@ def main(argv=None) -> int:
         def policy(obs, key):
             return jnp.zeros(obs.shape[:-1] + (senv.action_size,))
     else:
-        ckpt = runs_lib.resolve_checkpoint(a.setup)
+        ckpt = runs_lib.resolve_checkpoint(a.setup, pathlib.Path(a.runs))
         policy, prog = pol.load_policy(ckpt, senv.base)
     res = evaluate(senv, policy, a.n)
     doc = {"setup_policy": str(ckpt), "setup_policy_step": prog["step"],
@@ -386,6 +388,7 @@ def main(argv=None) -> int:
            "wall_s": round(time.perf_counter() - t0, 1), **res}
     print(json.dumps(doc, indent=2, default=str))
     if a.out:
+        pathlib.Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         pathlib.Path(a.out).write_text(json.dumps(doc, indent=2, default=str))
     return 0
 

@@ -51,6 +51,7 @@ from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.simulation import terrain
 from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_switching_config
+from biped_switch.kinds import POLICY_OF_CODE
 from biped_switch.paths import LOOKUP
 from biped_switch.switching.estimator import sweep_name
 from biped_switch.switching.lookup import load_context_lookup
@@ -89,7 +90,9 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
     artifact ahead of the target's the active policy hands over to that artifact's at
     lead_m[active, kind] - U(0, `lead_jitter_m`) (one draw per episode; at `force_m` at the
     latest), as the switching controller does along a track; `sources` then names the policy
-    the lead-in leaves acting before the target."""
+    the lead-in leaves acting before the target.
+
+    One function: `act` and `record` close over the episode draws the compiled rollout reads."""
     n = track_ids.shape[0]
     keys, k_u = episode_keys(rng, n)
     reset_keys = keys if reset_keys is None else reset_keys
@@ -123,9 +126,10 @@ def sweep_rollout(env, apply, params, rng, track_ids, sources, target: int, swit
         if lead_m is not None:  # the lead-in: hand over into each earlier artifact's policy
             code = jnp.maximum(det["kind"], 0)
             at_m = jnp.nan_to_num(lead_m[active, code], nan=force_m) - lead_u
-            lead = (live & (det["kind"] >= 0) & (det["index"] < tidx) & (code + 1 != active)
+            code_pol = jnp.asarray(_POLICY_OF_CODE)[code]
+            lead = (live & (det["kind"] >= 0) & (det["index"] < tidx) & (code_pol != active)
                     & (det["dist_m"] <= jnp.maximum(at_m, force_m)))
-            active = jnp.where(lead, code + 1, active)  # POLICY_INDEX = artifact code + 1
+            active = jnp.where(lead, code_pol, active)
             c = {**c, "lead_dist_m": jnp.where(lead, det["dist_m"], c["lead_dist_m"])}
         left = jnp.where(now, active, c["left"])  # the policy the switch leaves
         active = jnp.where(now, target, active)
@@ -323,6 +327,7 @@ def _part(out: dict, first_sample: int, window, lay) -> tuple[dict, int]:
 
 # Every session adding parts to a sweep must share these; of the config only the keys below may
 # differ (more points extend a sweep; the lookup bin applies to the merged data only).
+_POLICY_OF_CODE = np.asarray(POLICY_OF_CODE, np.int32)  # the policy that crosses each artifact code
 RESUME_KEYS = ("policies", "seed", "config", "guide_scale", "n_tracks", "track_seed", "context",
                "lead_in", "lead_m")
 PROGRESS_CONFIG_KEYS = ("n_points", "lookup_bin_m", "approach_queries")  # extra records only
@@ -363,7 +368,9 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
 
     part_dir/meta.json keeps `wall_s_total`, the sum of the wall times of the sessions that ran
     batches; it is updated after every part and on an exception, so an interrupted session's time
-    counts too (all but its last batch's if the process is killed)."""
+    counts too (all but its last batch's if the process is killed).
+
+    One function: one resumable session top to bottom, `write_meta` closing over its wall time."""
     t_start = time.perf_counter()
     if target not in terrain.ARTIFACT_KINDS:
         raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")

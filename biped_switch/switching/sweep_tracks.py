@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from biped_switch.config import SWEEP_TRACK_SEED, default_terrain_config
+from biped_switch.kinds import BEHAVIOUR, policy_for
 from biped_switch.learning import policies as pol
 from biped_switch.simulation import env as env_lib
 from biped_switch.simulation import terrain
@@ -30,7 +31,7 @@ def make_env(target: str, init: str, n_tracks: int, difficulty: float = 1.0, **o
 
 
 def _others(target: str) -> list[int]:
-    return [j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]]
+    return [j for j in range(len(pol.POLICY_NAMES)) if j != policy_for(target)]
 
 
 def _plan(target: str, n_tracks: int, artifact_track) -> tuple[list[list[str]], np.ndarray,
@@ -44,10 +45,10 @@ def _plan(target: str, n_tracks: int, artifact_track) -> tuple[list[list[str]], 
     kinds, src, tidx = [], [], []
     for i in range(n_tracks):
         j, rnd = others[i % len(others)], i // len(others)
-        name = pol.POLICY_NAMES[j]
-        kinds.append([target, after[rnd % len(after)]] if name == "walk"
-                     else artifact_track(name, rnd))
-        tidx.append(0 if name == "walk" else len(kinds[-1]) - 1)
+        crosses = BEHAVIOUR[pol.POLICY_NAMES[j]].crosses
+        kinds.append([target, after[rnd % len(after)]] if crosses is None
+                     else artifact_track(crosses, rnd))
+        tidx.append(0 if crosses is None else len(kinds[-1]) - 1)
         src.append(j)
     return kinds, np.asarray(src, np.int32), np.asarray(tidx, np.int32)
 
