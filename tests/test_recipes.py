@@ -307,3 +307,13 @@ def test_a_committed_seeded_replay_goes_on_where_it_stopped(tmp_path, monkeypatc
     firsts = [int(c[c.index("--total-steps") + 1]) for c in calls if "--total-steps" in c]
     assert all(t > step for t in firsts) and len(calls) == len(recipe_lib.segments(
         rec, recipe_lib.exports("walk_stand", [recipe_lib.load(d) for d in RUNS]))) - 4
+
+
+def test_train_all_status_gives_the_hours_left_to_the_recorded_final_step(tmp_path):
+    log = tmp_path / "replay.log"
+    assert recipe_lib._status(log, 100) == "starting"
+    log.write_text("resuming ...\n[walk/stand] step 1,000,000  stage pushes d=1.00  2,000 steps/s"
+                   "  elapsed 0.10 h  left ~0.2 h\n")
+    line = recipe_lib._status(log, 8_200_000)
+    assert line.startswith("[walk/stand] step 1,000,000") and "elapsed" not in line
+    assert line.endswith("~1.0 h to 8,200,000")  # 7.2M steps at 2,000/s

@@ -192,50 +192,49 @@ def test_jumps_at_difficulty_1(all_tracks):
             assert b[0, 0] - b[0, 3] == pytest.approx(a0)
 
 
-def test_gaps_at_difficulty_1(all_tracks):
-    for t in all_tracks["gaps"] + all_tracks["mixed"]:
+def _each_artifact(tracks, kind):
+    """(track, its boxes' x intervals, a0, a1, segments) of every `kind` artifact on `tracks`."""
+    for t in tracks:
         iv_all = box_intervals_x(t.boxes)
         for (name, a0, a1), (s0, s1) in zip(t.artifacts, t.artifact_segments):
-            if name != "gaps":
-                continue
-            n = s1 - s0 + 1
-            n_holes, n_plat = (n + 1) // 2, n // 2  # starts with a hole, alternates
-            plat = _boxes_in(t, a0, a1)
-            assert len(plat) == n_plat
-            np.testing.assert_allclose(_tops(plat), 0.0)
-            # the hole at the start: nothing between a0 and a0 + 0.7
-            assert plat[0, 0] - plat[0, 3] == pytest.approx(a0 + 0.7)
-            inside = iv_all[(iv_all[:, 1] > a0 + 1e-9) & (iv_all[:, 0] < a1 - 1e-9)]
-            assert len(inside) == n_plat
-            # every space in [a0, a1] is exactly one 0.7 m hole
-            starts = np.concatenate([[a0], inside[:, 1]])
-            ends = np.concatenate([inside[:, 0], [a1]])
-            holes = ends - starts
-            holes = holes[holes > 1e-9]
-            assert len(holes) == n_holes
-            np.testing.assert_allclose(holes, 0.7, atol=1e-9)
+            if name == kind:
+                yield t, iv_all, a0, a1, s1 - s0 + 1
+
+
+def _check_holes(iv_all, a0, a1, n_boxes, n_holes, hole_m):
+    """Inside the artifact [a0, a1]: `n_boxes` boxes, and every space between them (and its ends)
+    one hole of exactly `hole_m`."""
+    inside = iv_all[(iv_all[:, 1] > a0 + 1e-9) & (iv_all[:, 0] < a1 - 1e-9)]
+    assert len(inside) == n_boxes
+    holes = np.concatenate([inside[:, 0], [a1]]) - np.concatenate([[a0], inside[:, 1]])
+    holes = holes[holes > 1e-9]
+    assert len(holes) == n_holes
+    np.testing.assert_allclose(holes, hole_m, atol=1e-9)
+
+
+def test_gaps_at_difficulty_1(all_tracks):
+    for t, iv_all, a0, a1, n in _each_artifact(all_tracks["gaps"] + all_tracks["mixed"], "gaps"):
+        n_holes, n_plat = (n + 1) // 2, n // 2  # starts with a hole, alternates
+        plat = _boxes_in(t, a0, a1)
+        assert len(plat) == n_plat
+        np.testing.assert_allclose(_tops(plat), 0.0)
+        # the hole at the start: nothing between a0 and a0 + 0.7
+        assert plat[0, 0] - plat[0, 3] == pytest.approx(a0 + 0.7)
+        _check_holes(iv_all, a0, a1, n_plat, n_holes, 0.7)
 
 
 def test_stones_at_difficulty_1(all_tracks):
     """A hole, then a raised stone, alternating: stones 0.3 m long with tops 0.15 m up, holes
     0.45 m, nothing else inside the artifact."""
-    for t in all_tracks["stones"] + all_tracks["mixed4"]:
-        iv_all = box_intervals_x(t.boxes)
-        for (name, a0, a1), (s0, s1) in zip(t.artifacts, t.artifact_segments):
-            if name != "stones":
-                continue
-            n = s1 - s0 + 1
-            n_holes, n_stones = (n + 1) // 2, n // 2
-            b = _boxes_in(t, a0, a1)
-            assert len(b) == n_stones >= 2
-            np.testing.assert_allclose(_tops(b), STONE["top"])
-            np.testing.assert_allclose(_lengths(b), STONE["length"])
-            assert b[0, 0] - b[0, 3] == pytest.approx(a0 + STONE["hole"])
-            inside = iv_all[(iv_all[:, 1] > a0 + 1e-9) & (iv_all[:, 0] < a1 - 1e-9)]
-            holes = np.concatenate([inside[:, 0], [a1]]) - np.concatenate([[a0], inside[:, 1]])
-            holes = holes[holes > 1e-9]
-            assert len(holes) == n_holes
-            np.testing.assert_allclose(holes, STONE["hole"], atol=1e-9)
+    for t, iv_all, a0, a1, n in _each_artifact(all_tracks["stones"] + all_tracks["mixed4"],
+                                               "stones"):
+        n_holes, n_stones = (n + 1) // 2, n // 2
+        b = _boxes_in(t, a0, a1)
+        assert len(b) == n_stones >= 2
+        np.testing.assert_allclose(_tops(b), STONE["top"])
+        np.testing.assert_allclose(_lengths(b), STONE["length"])
+        assert b[0, 0] - b[0, 3] == pytest.approx(a0 + STONE["hole"])
+        _check_holes(iv_all, a0, a1, n_stones, n_holes, STONE["hole"])
 
 
 @pytest.mark.parametrize("d", [0.0, 0.3, 0.75])

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import pathlib
+import re
 import shutil
 
 from biped_switch.learning import runs as runs_lib
@@ -345,12 +346,22 @@ def _ready(rec: dict, out: pathlib.Path) -> bool:
     return True
 
 
-def _last_progress_line(log: pathlib.Path) -> str:
-    """The newest progress line ("[policy/init] step ...") of a replay's log, shortened."""
+def _status(log: pathlib.Path, final_step: int) -> str:
+    """A replay's newest progress line ("[policy/init] step N ... stage ... R steps/s ..."),
+    shortened, with the hours left to the recorded run's final step at that rate."""
     if not log.is_file():
         return "starting"
     lines = [ln for ln in log.read_text(errors="replace").splitlines() if "] step " in ln]
-    return lines[-1].strip()[:160] if lines else "compiling"
+    if not lines:
+        return "compiling"
+    last = lines[-1].strip()
+    step = re.search(r"\] step ([\d,]+)", last)
+    rate = re.search(r"([\d,]+) steps/s", last)
+    eta = ""
+    if step and rate and int(rate.group(1).replace(",", "")) > 0:
+        left = max(final_step - int(step.group(1).replace(",", "")), 0)
+        eta = f"; ~{left / int(rate.group(1).replace(',', '')) / 3600:.1f} h to {final_step:,}"
+    return last.split("  elapsed")[0][:170] + eta
 
 
 def replay_all(run_dirs, runs, say=print, seed: int | None = None, jobs: int = 1,
@@ -406,7 +417,7 @@ def replay_all(run_dirs, runs, say=print, seed: int | None = None, jobs: int = 1
         if running and time.time() - last_report >= report_s:
             last_report = time.time()
             for d, (_, log) in running.items():
-                say(f"[train-all] {recs[d]['run']}: {_last_progress_line(log)}")
+                say(f"[train-all] {recs[d]['run']}: {_status(log, recs[d]['final_step'])}")
         time.sleep(poll_s if running else 0)
     if failed:
         say(f"[train-all] failed: {', '.join(failed)}")

@@ -41,8 +41,9 @@ from biped_switch.simulation.detection import debounce_step
 from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
 from biped_switch.simulation.terrain import ARTIFACT_KINDS
 from biped_switch.kinds import POLICY_OF_CODE
+from biped_switch.methods import RULES
 
-METHODS = ("random", "detection", "lookup", "com_over_feet", "estimator")
+METHODS = RULES  # the rules a Table II row (methods.py) can name
 METHOD_INDEX = {m: i for i, m in enumerate(METHODS)}
 N_POLICIES = len(pol.POLICY_NAMES)
 N_TARGETS = len(ARTIFACT_KINDS)  # the switch targets: jumps, gaps, stairs
