@@ -44,6 +44,7 @@ def main(argv=None) -> int:
                    help="cap each joint's exploration std at STD [fraction of the motor limit] "
                         "(default: a resumed run's own, else 0: no cap; mixed trains with 0.5 "
                         "from 205.7M env steps: its recipe.json)")
+    p.add_argument("--push-plateau-steps", type=int, metavar="N", help="curriculum.py (0: no plateau end)")
     p.add_argument("--warm-start", default=None, metavar="CKPT_OR_RUN",
                    help="start a new run from the parameters of a checkpoint folder, a run "
                         "folder's latest checkpoint, or a run name (e.g. walk_stand: runs/, then "
@@ -123,7 +124,8 @@ def main(argv=None) -> int:
     for flag, section, key, ok, must in (
             ("--learning-rate", "ppo", "learning_rate", lambda v: v > 0, "> 0"),
             ("--guide-notch", "curriculum", "guide_notch", lambda v: 0 < v < 1, "in (0, 1)"),
-            ("--max-action-std", "ppo", "max_action_std", lambda v: v >= 0, ">= 0 (0: no cap)")):
+            ("--max-action-std", "ppo", "max_action_std", lambda v: v >= 0, ">= 0 (0: no cap)"),
+            ("--push-plateau-steps", "curriculum", "push_plateau_steps", lambda v: v >= 0, ">= 0")):
         given = getattr(a, flag[2:].replace("-", "_"))
         if given is not None:
             if not ok(given):
@@ -132,10 +134,8 @@ def main(argv=None) -> int:
         elif (v := trainer.saved_setting(run_dir, section, key)) is not None and v != cfg[section][key]:
             print(f"keeping the run's {key.replace('_', ' ')} {v:g} (config.json; {flag} changes it)")
             cfg[section][key] = v
-    if a.total_steps is not None:
-        cfg.total_timesteps = a.total_steps
-    if a.chunk_steps is not None:
-        cfg.chunk_timesteps = a.chunk_steps
+    cfg.total_timesteps = a.total_steps or cfg.total_timesteps  # both positive when given
+    cfg.chunk_timesteps = a.chunk_steps or cfg.chunk_timesteps
     print(f"training {a.policy}/{a.init} on {jax.device_count()} {jax.devices()[0].platform} device(s), "
           f"{cfg.total_timesteps:,} steps in chunks of {cfg.chunk_timesteps:,} -> {run_dir}", flush=True)
     print_fn = functools.partial(print, flush=True)
