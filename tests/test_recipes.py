@@ -317,3 +317,23 @@ def test_train_all_status_gives_the_hours_left_to_the_recorded_final_step(tmp_pa
     line = recipe_lib._status(log, 8_200_000)
     assert line.startswith("[walk/stand] step 1,000,000") and "elapsed" not in line
     assert line.endswith("~1.0 h to 8,200,000")  # 7.2M steps at 2,000/s
+
+
+def test_a_warm_start_source_replays_past_its_export_without_a_rule_its_run_lacked():
+    """A run that others warm-start from at a step before its end must reach that step in its
+    replay: if it trained before the push plateau rule existed, the segments up to the export
+    turn the rule off (walk_stand's seed-1 replay otherwise ended at 24.24M, short of 32.37M)."""
+    recipes = [recipe_lib.load(d) for d in RUNS]
+    checked = 0
+    for d in RUNS:
+        rec = recipe_lib.load(d)
+        keep = recipe_lib.exports(rec["run"], recipes)
+        if not keep or rec["command"] != "train":
+            continue
+        cfg, _ = _recorded(d)
+        had_rule = cfg.get("curriculum", {}).get("push_plateau_steps") is not None
+        for seg in recipe_lib.segments(rec, keep):
+            if seg["until"] <= max(keep) and not had_rule:
+                assert seg["flags"].get("--push-plateau-steps") == 0, (rec["run"], seg["until"])
+                checked += 1
+    assert checked >= 4  # walk_stand's segments up to 32.37M
