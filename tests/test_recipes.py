@@ -194,10 +194,11 @@ def _fake_train(calls):
     return fake_train
 
 
-def test_a_seeded_replay_starts_from_its_own_sources_only(tmp_path):
+def test_a_seeded_replay_starts_from_its_own_sources_only(tmp_path, monkeypatch):
     """`train --recipe ... --seed 1`: into runs/replay_seed1/, every call with --seed 1, and the
     artifact policy's warm start is the seed-1 walk at the recipe's step, never the committed
     walk (an error naming the missing source until it exists)."""
+    monkeypatch.setattr(recipe_lib, "REPO", tmp_path / "repo")  # no committed seed-1 replays
     calls = []
     out = recipe_lib.replay_dir(tmp_path, 1)
     assert out == tmp_path / "replay_seed1" and recipe_lib.replay_dir(tmp_path, None).name == "replay"
@@ -234,6 +235,7 @@ def test_train_all_with_jobs_starts_each_recipe_once_its_source_is_there(tmp_pat
     thread and --seed; the setup policy after gaps."""
     import subprocess
 
+    monkeypatch.setattr(recipe_lib, "REPO", tmp_path / "repo")  # no committed seed-1 replays
     events, live = [], set()
     out = recipe_lib.replay_dir(tmp_path, 1)
 
