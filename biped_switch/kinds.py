@@ -1,19 +1,9 @@
-"""The terrain kinds and the behaviour policies, one record each: every table of codes, stream ids,
-colours and policy slots the package uses is derived here, so adding a kind or a behaviour is one
-record (plus its segment builder in simulation/terrain.py and its sizes in config.py).
-
-Plain Python, importing nothing, so every layer (the reports' too) can read it.
-
-Codes and stream ids are fixed per record, never positions in a list: a track's random stream is
-seeded by its kind's `stream`, so a new kind (whatever its place) re-lays no existing track.
-
-The paper's suite (`paper=True`: walk, jumps, gaps, stairs) is what every committed part was made
-for: the 4-policy suites, the 3-class detectors, the DQN's and end-to-end's observation one-hot,
-Table II and the sweeps. The tables without a prefix (ARTIFACT_KINDS, POLICY_NAMES, ...) are that
-suite's, so a kind added with `paper=False` changes none of them (nor any checkpoint's shapes);
-the ALL_ tables hold every record, for what opts in (the track generator, training, `evaluate
-single --kind`).
-"""
+"""Terrain kinds and behaviour policies, one record each; every table of codes, stream ids, colours
+and policy slots is derived here. Plain Python, importing nothing, so every layer can read it.
+Stream ids are fixed per record (a new kind re-lays no track). The tables without a prefix
+(ARTIFACT_KINDS, POLICY_NAMES, ...) are the paper's suite (`paper=True`), which every committed
+suite, detector and one-hot was made for; a kind added with `paper=False` changes none of them,
+and the ALL_ tables (the generator, training, `evaluate single --kind`) hold every record."""
 
 from __future__ import annotations
 

@@ -253,16 +253,19 @@ def make_train(cfg, env) -> Trainer:
         state = jax.vmap(lambda k: env.reset(k, d, guide_scale=g, push_scale=push))(keys)
         return state, jnp.zeros(n_envs, jnp.int32), jnp.zeros(n_envs)
 
-    def net_input(norm, obs):
-        """(raw, normalised) network inputs of `obs` under the normaliser `norm`."""
-        x = policy_input(obs)
-        return x, normalize(Normalizer(norm.mean[in_cols_j], norm.var[in_cols_j], norm.count), x,
-                            in_mask_j)
+    def input_norm(norm):
+        """The normaliser's entries of the network input's columns (gathered once per rollout)."""
+        return Normalizer(norm.mean[in_cols_j], norm.var[in_cols_j], norm.count)
 
-    def forward(ts: TrainState, obs, key):
+    def net_input(norm_in, obs):
+        """(raw, normalised) network inputs of `obs` under `input_norm`'s normaliser."""
+        x = policy_input(obs)
+        return x, normalize(norm_in, x, in_mask_j)
+
+    def forward(ts: TrainState, obs, key, norm_in=None):
         """The collection's network pass on a batch of observations: the sampled action, its
         log-likelihood, the value, and the raw and normalised network inputs."""
-        x, xn = net_input(ts.norm, obs)
+        x, xn = net_input(input_norm(ts.norm) if norm_in is None else norm_in, obs)
         mean = pi.apply(ts.params["policy"], xn)
         action = mean + jnp.exp(ts.params["log_std"]) * jax.random.normal(key, mean.shape)
         return {"x_raw": x, "x": xn, "action": action,
@@ -276,10 +279,11 @@ def make_train(cfg, env) -> Trainer:
         env_state, ep_t, ep_ret = envs
         k_fresh, k_roll = keys[0], keys[1]
         fresh, _, _ = reset_envs(k_fresh, curr)
+        norm_in = input_norm(ts.norm)
 
         def step(carry, key):
             state, t, ret = carry
-            act = forward(ts._replace(params=params), state.obs, key)
+            act = forward(ts._replace(params=params), state.obs, key, norm_in)
             action = act["action"]
             nxt = jax.vmap(env.step)(state, action)
             t = t + 1
@@ -302,7 +306,7 @@ def make_train(cfg, env) -> Trainer:
 
         (env_state, ep_t, ep_ret), tr = jax.lax.scan(step, (env_state, ep_t, ep_ret),
                                                     jax.random.split(k_roll, T))
-        tr["last_value"] = vf.apply(params["value"], net_input(ts.norm, env_state.obs)[1])[..., 0]
+        tr["last_value"] = vf.apply(params["value"], net_input(norm_in, env_state.obs)[1])[..., 0]
         return (env_state, ep_t, ep_ret), tr
 
     def update(ts: TrainState, tr, k_sgd):
