@@ -10,7 +10,6 @@ import json
 import sys
 import jax
 from biped_switch import cli
-from biped_switch.simulation import env as env_lib
 from biped_switch.simulation import terrain
 from biped_switch.evaluation import bench as bench_lib
 

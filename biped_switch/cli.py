@@ -18,6 +18,7 @@ COMMANDS = {
     "sweep": "switch-point sweeps: estimator data and lookup tables",
     "estimator": "train the switch estimators from the sweeps",
     "dqn": "train the DQN selector baseline",
+    "distill": "distil the composed controller into one student policy (DAgger)",
     "evaluate": "Tables I-III, failures and switches",
     "demo": "a short end-to-end check of the committed models",
     "render": "a GIF of a rollout",

@@ -8,14 +8,11 @@ from __future__ import annotations
 import argparse
 import functools
 import pathlib
-import sys
 import jax
 from biped_switch import cli
-from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_dqn_config
-from biped_switch.learning import dqn as dqn_lib
 from biped_switch.learning import dqn_train as dqn_train
 from biped_switch.reports import curves
 

@@ -35,6 +35,7 @@ class Method:
     heuristic: bool = False  # one of the paper's hand-made rules
     reads_detector: bool = True  # False: the end-to-end policy reads only its heightmap
     fig5_suffix: str | None = None  # `evaluate multi` draws Fig. 5 as fig5_trial<i><suffix>.png
+    policy: str | None = None  # a one-policy row (a baseline): the run <policy>_stand it runs
 
     def __post_init__(self):
         if self.rule is not None and self.rule not in RULES:
@@ -43,6 +44,8 @@ class Method:
             raise ValueError(f"{self.name}: suite {self.suite!r} / whose {self.whose!r}")
         if {self.lookup, self.estimators} - {None, *PARTS_FROM}:
             raise ValueError(f"{self.name}: parts from {self.lookup!r} / {self.estimators!r}")
+        if self.policy is not None and self.rule is not None:
+            raise ValueError(f"{self.name}: a one-policy row ({self.policy!r}) has no switching rule")
 
     @property
     def baseline(self) -> bool:
@@ -78,7 +81,7 @@ TABLE2 = (
     _M("estimator_no_overlap", "Estimator, no overlap", "paper", "tab:purple", "estimator",
        suite="random", estimators="sweep"),
     _M("dqn", "DQN", "paper", "tab:brown"),
-    _M("end_to_end", "End-to-end", "paper", "black", reads_detector=False),
+    _M("end_to_end", "End-to-end", "paper", "black", reads_detector=False, policy="mixed"),
     _M("lookup_context", "Lookup table (context sweep)", "ours", "tab:orange", "lookup",
        lookup="context"),
     _M("estimator_context", "Estimator (context sweep)", "ours", "tab:green", "estimator",
@@ -97,6 +100,9 @@ TABLE2 = (
        fig5_suffix="_learned"),
     _M("learned_no_overlap", "Learned when rule, no overlap", "ours", "slateblue", "estimator",
        suite="random", when=True),
+    # one policy distilled from lookup_context_setup by DAgger (learning/distillation.py)
+    _M("student", "Student (distilled)", "ours", "goldenrod", reads_detector=False,
+       policy="student"),
 )
 BY_NAME = {m.name: m for m in TABLE2}
 

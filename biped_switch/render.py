@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import sys
 import jax
 from biped_switch import cli
 from biped_switch.names import ALL_POLICY_NAMES as POLICY_NAMES, TERRAIN_KINDS

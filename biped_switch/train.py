@@ -60,10 +60,9 @@ def main(argv=None) -> int:
     p.add_argument("--name", default=None, help="run folder name (default <policy>_<init>)")
     p.add_argument("--distributed", action="store_true", help="jax.distributed.initialize() first")
     p.add_argument("--plot", metavar="PNG", help="only plot the run's training curves to PNG")
-    p.add_argument("--probe-guides", metavar="G1,G2,...",
-                   help="only run the curriculum check of the run's latest checkpoint at these "
-                        "guide levels (its own difficulty and pushes), print a table and write "
-                        "probe_guides.json in the run folder")
+    p.add_argument("--probe-guides", metavar="G1,G2,...", help="only run the curriculum check of "
+                   "the run's latest checkpoint at these guide levels (its own difficulty and "
+                   "pushes), print a table and write probe_guides.json in the run folder")
     p.add_argument("--commit", action="store_true", help="only copy the run's latest checkpoint, "
                    "logs and curves to models/policies/<run>/ (with --recipe and --seed S: each "
                    "replay to models/replay_seedS/<run>/), then git-commit that folder")
@@ -79,13 +78,14 @@ def main(argv=None) -> int:
                         "thread, a recipe starting once its sources have replayed far enough")
     a = p.parse_args(argv)
     if a.recipe:
-        from biped_switch import dqn
+        from biped_switch import distill, dqn
         from biped_switch.learning import recipe as recipe_lib
         try:
             if a.commit and a.seed is not None:
                 return print(*recipe_lib.commit_replays(a.recipe, a.out, a.seed), sep="\n") or 0
+            mains = {"train": main, "dqn": dqn.main, "distill": distill.main}
             return recipe_lib.replay_all(a.recipe, a.out, functools.partial(print, flush=True),
-                                         a.seed, a.jobs, {"train": main, "dqn": dqn.main})
+                                         a.seed, a.jobs, mains)
         except recipe_lib.RecipeError as e:
             p.error(str(e))
     if a.plot:
@@ -125,17 +125,17 @@ def main(argv=None) -> int:
             ("--learning-rate", "ppo", "learning_rate", lambda v: v > 0, "> 0"),
             ("--guide-notch", "curriculum", "guide_notch", lambda v: 0 < v < 1, "in (0, 1)"),
             ("--max-action-std", "ppo", "max_action_std", lambda v: v >= 0, ">= 0 (0: no cap)"),
-            ("--push-plateau-steps", "curriculum", "push_plateau_steps", lambda v: v >= 0, ">= 0")):
-        given = getattr(a, flag[2:].replace("-", "_"))
+            ("--push-plateau-steps", "curriculum", "push_plateau_steps", lambda v: v >= 0, ">= 0"),
+            ("--chunk-steps", None, "chunk_timesteps", lambda v: v > 0, "> 0")):
+        given, sec = getattr(a, flag[2:].replace("-", "_")), cfg[section] if section else cfg
         if given is not None:
             if not ok(given):
                 p.error(f"{flag} must be {must}, got {given}")
-            cfg[section][key] = given
-        elif (v := trainer.saved_setting(run_dir, section, key)) is not None and v != cfg[section][key]:
-            print(f"keeping the run's {key.replace('_', ' ')} {v:g} (config.json; {flag} changes it)")
-            cfg[section][key] = v
-    cfg.total_timesteps = a.total_steps or cfg.total_timesteps  # both positive when given
-    cfg.chunk_timesteps = a.chunk_steps or cfg.chunk_timesteps
+            sec[key] = given
+        elif (v := trainer.saved_setting(run_dir, section, key)) is not None and v != sec[key]:
+            print(f"keeping the run's {key.replace('_', ' ')} {v:,.10g} (config.json; {flag} changes it)")
+            sec[key] = type(sec[key])(v)
+    cfg.total_timesteps = a.total_steps or cfg.total_timesteps  # not kept: a recipe's segments set it
     print(f"training {a.policy}/{a.init} on {jax.device_count()} {jax.devices()[0].platform} device(s), "
           f"{cfg.total_timesteps:,} steps in chunks of {cfg.chunk_timesteps:,} -> {run_dir}", flush=True)
     print_fn = functools.partial(print, flush=True)

@@ -251,6 +251,15 @@ def test_retrain_cost_from_logs(tmp_path, monkeypatch):
     rows = {r["method"]: r for r in table3.retrain_cost(runs, res, when_dir=when_dir)["rows"]}
     assert rows["ours_learned"]["hours"] == pytest.approx(1.0 + 3 * 0.2 + 0.01)
     assert rows["ours_learned"]["parts"]["when sweep gaps"] == pytest.approx(0.2)
+    # compose, then distil: ours with the setup policy, plus the distillation
+    assert "distilled" not in rows
+    _fake_run(runs / "setup_gaps_stand", 0.5 * 3600.0)
+    _fake_run(runs / "student_stand", 2 * 3600.0)
+    rows = {r["method"]: r for r in table3.retrain_cost(runs, res)["rows"]}
+    assert rows["ours_setup"]["hours"] == pytest.approx(1.9 + 0.5)
+    assert rows["distilled"]["hours"] == pytest.approx(1.9 + 0.5 + 2.0)
+    assert rows["distilled"]["parts"]["distillation"] == pytest.approx(2.0)
+    assert "| distilled | 4.40 |" in table3.table3_markdown(table3.retrain_cost(runs, res))
 
 
 def test_retrain_cost_flags_unfinished_and_stand_in_runs(tmp_path):
@@ -282,6 +291,11 @@ def _fake_ckpt(run_dir, step=1):
     (ck / "progress.json").write_text("{}")
 
 
+def in_order(methods) -> list:
+    """`methods` in Table II's order (available_methods keeps it)."""
+    return [m for m in names.MULTI_METHODS if m in set(methods)]
+
+
 def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     # only these fakes count: not the policies committed under models/policies/ (walk_random is)
     # nor the DQN under models/baselines/
@@ -297,7 +311,9 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     why = dict(s.split(": ", 1) for s in skipped)
     assert set(why) == {"lookup", "estimator", "estimator_no_overlap", "dqn", "end_to_end",
                         "lookup_context", "estimator_context", "estimator_context_persist",
-                        "lookup_context_setup", "learned", "learned_no_overlap", "learned_setup"}
+                        "lookup_context_setup", "learned", "learned_no_overlap", "learned_setup",
+                        "student"}
+    assert "python -m biped_switch.distill" in why["student"]
     assert f"no learned when rule in {when_dir}/stand" in why["learned"]
     assert "--policy setup_gaps" in why["learned_setup"]  # its first missing part
     assert "--policy setup_gaps" in why["lookup_context_setup"]
@@ -311,6 +327,7 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     for n in ("jumps", "gaps", "stairs"):
         _fake_ckpt(runs / f"{n}_random")
     _fake_ckpt(runs / "mixed_stand")
+    _fake_ckpt(runs / "student_stand")
     _fake_ckpt(runs / "dqn_stand")
     for init in ("stand", "random"):
         for k in ("jumps", "gaps", "stairs"):
@@ -326,13 +343,13 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     assert [s.split(":")[0] for s in skipped[1:]] == later
     (lookup / "lookup_stand.json").write_text('{"tables": {"jumps": {}, "gaps": {}, "stairs": {}}}')
     ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
-    assert ok == list(names.SWITCH_METHODS + names.BASELINES)
+    assert ok == in_order(names.SWITCH_METHODS + names.BASELINES)
     assert [s.split(":")[0] for s in skipped] == later
     # a context sweep of one target: the other targets keep the plain sweep's parts
     (est / "stand_context_gaps").mkdir()
     (lookup / "lookup_stand_context.json").write_text('{"tables": {"gaps": {}}}')
     ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
-    assert ok == list(names.SWITCH_METHODS + names.BASELINES + names.CONTEXT_METHODS)
+    assert ok == in_order(names.SWITCH_METHODS + names.BASELINES + names.CONTEXT_METHODS)
     assert [s.split(":")[0] for s in skipped] == later[len(names.CONTEXT_METHODS):]
     # a setup policy: its run's config says what it serves
     _fake_ckpt(runs / "setup_gaps_stand")
@@ -510,7 +527,7 @@ def test_paper_claims_by_hand():
     rows = heur + [_ci_row("estimator", 71, 69, 73), _ci_row("estimator_no_overlap", 1, 0, 2),
                    _ci_row("dqn", 72, 70, 74), _ci_row("end_to_end", 90, 89, 91)]
     got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}  # the paper's table
-    assert [c["verdict"] for c in got.values()] == ["holds"] * 4 + ["not tested"] * 3
+    assert [c["verdict"] for c in got.values()] == ["holds"] * 4 + ["not tested"] * 4
     assert "above all 7 other rows" in got["end-to-end is best"]["evidence"]
     rows[3] = _ci_row("com_over_feet", 70, 68, 72)  # overlaps the estimator: not beaten
     rows[6] = _ci_row("dqn", 80, 78, 82)
@@ -540,11 +557,18 @@ def test_paper_claims_by_hand():
     rows[-1] = _ci_row("lookup_context_setup", 91, 90, 91.9)
     got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(rows)}
     assert got[setup]["verdict"] == "holds"
+    # ours: the distilled student against end-to-end (89-91): its lower bound must clear 91
+    student = "ours: a student distilled from the composed suite beats the end-to-end policy trained by RL"
+    assert got[student]["evidence"] == "missing rows: student"
+    for lo, verdict in ((91.0, "fails"), (91.1, "holds")):
+        got = {c["claim"].split(" (")[0]: c for c in table2_report.paper_claims(
+            rows + [_ci_row("student", 92, lo, 93)])}
+        assert got[student]["verdict"] == verdict, lo
     part = table2_report.paper_claims(heur + [_ci_row("estimator", 71, 69, 73)])
-    assert [c["verdict"] for c in part] == ["holds"] + ["not tested"] * 6
+    assert [c["verdict"] for c in part] == ["holds"] + ["not tested"] * 7
     assert part[1]["evidence"] == "missing rows: estimator_no_overlap"
     md = table2_report.claims_markdown(part)
-    assert md.count("\n") == 8 and "| the DQN is comparable" in md
+    assert md.count("\n") == 9 and "| the DQN is comparable" in md
 
 
 def test_run_batches_covers_each_trial_once_and_reports_progress():

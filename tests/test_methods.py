@@ -43,8 +43,13 @@ def test_records_are_table2():
     """One record per Table II row, in its order; the names' tuples are read off them; every
     rule is a switching rule; the persist run is a sweep sample's window."""
     assert names.MULTI_METHODS == tuple(m.name for m in methods.TABLE2)
-    assert set(names.MULTI_METHODS) == set(WANT) | {"dqn", "end_to_end"}
-    assert names.BASELINES == ("dqn", "end_to_end")
+    assert set(names.MULTI_METHODS) == set(WANT) | {"dqn", "end_to_end", "student"}
+    assert names.BASELINES == ("dqn", "end_to_end", "student")
+    # one-policy rows run the run <policy>_stand: the end-to-end policy and the distilled student
+    assert [(m, methods.method(m).policy) for m in names.BASELINES] == [
+        ("dqn", None), ("end_to_end", "mixed"), ("student", "student")]
+    with pytest.raises(ValueError, match="has no switching rule"):
+        methods.Method("x", "X", "ours", "red", rule="lookup", policy="student")
     assert names.RANDOM_INIT_METHODS == ("estimator_no_overlap", "learned_no_overlap")
     assert names.HEURISTICS == ("random", "detection", "lookup", "com_over_feet")
     assert set(names.LEARNED_METHODS) == {"learned", "learned_no_overlap", "learned_setup"}

@@ -377,6 +377,9 @@ def test_a_resume_keeps_the_runs_own_settings(tmp_path, monkeypatch):
     (run / "config.json").write_text(json.dumps({"ppo": {"learning_rate": 1e-4}}))
     assert train_lib.saved_setting(run, "ppo", "learning_rate") == pytest.approx(1e-4)
     assert train_lib.saved_setting(run, "curriculum", "guide_notch") is None
+    (run / "config.json").write_text(json.dumps({"chunk_timesteps": 250_000, "ppo": {}}))
+    assert train_lib.saved_setting(run, None, "chunk_timesteps") == 250_000
+    assert train_lib.saved_setting(run, None, "total_timesteps") is None
 
 
 def test_guide_notch_flag_names_a_bad_value(capsys):

@@ -104,9 +104,10 @@ def _missing(rec: Method, runs: pathlib.Path, est_dir, lookup_dir, dqn_dir, stan
     """The first part of `rec`'s row that is not trained, with the command that makes it (None:
     all there), in the order a user would make them."""
     init = rec.suite
-    if rec.name == "end_to_end":
-        if runs_lib.find_policy("mixed", "stand", runs) is None:
-            return "no end-to-end policy (python -m biped_switch.train --policy mixed)"
+    if rec.policy is not None:
+        if runs_lib.find_policy(rec.policy, "stand", runs) is None:
+            return (f"no {rec.policy}_stand policy (python -m biped_switch."
+                    f"{'distill' if rec.policy == 'student' else 'train --policy ' + rec.policy})")
     else:  # the suite: all four policies, or with a stand-in, walk or the stand-in
         missing = [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, init, runs) is None]
         if stand_in is not None and (runs_lib.find_policy("walk", init, runs) is not None
@@ -320,18 +321,19 @@ class MultiSetup:
 
 
 class BaselineSetup:
-    """The DQN selector or the end-to-end policy on MultiSetup's tracks, seeds and horizon.
+    """The DQN selector or a one-policy row (the end-to-end policy, the distilled student) on
+    MultiSetup's tracks, seeds and horizon.
 
-    Both run `dqn.dqn_rollout` (same resets, chunks, early stop and frozen metrics as
-    `switching.multi_rollout`); the end-to-end policy is a one-policy suite whose "selector"
-    always picks it."""
+    All run `dqn.dqn_rollout` (same resets, chunks, early stop and frozen metrics as
+    `switching.multi_rollout`); a one-policy row is a suite of its record's `policy` whose
+    "selector" always picks it."""
 
     def __init__(self, method: str, cfg: MultiConfig):
         trials, runs, stand_in, n_artifacts = cfg.trials, cfg.runs, cfg.stand_in, cfg.n_artifacts
         track_seed, backend, dqn_dir = cfg.track_seed, cfg.backend, cfg.dqn_dir
         if method not in BASELINES:
             raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
-        self.method = method
+        self.method, rec = method, method_record(method)
         if method == "dqn":
             run_dir = runs_lib.find_dqn(runs, "stand", dqn_dir)
             if run_dir is None:
@@ -353,8 +355,8 @@ class BaselineSetup:
                 self.sources += (f"MISMATCH: selector trained with {trained_with}",)
         else:
             self.env = multi_env("stand", trials, n_artifacts, track_seed, backend=backend,
-                                 **pol.suite_env_overrides("stand", runs, names=("mixed",)))
-            self.suite = pol.load_suite("stand", self.env, runs, names=("mixed",))
+                                 **pol.suite_env_overrides("stand", runs, names=(rec.policy,)))
+            self.suite = pol.load_suite("stand", self.env, runs, names=(rec.policy,))
             self.q_params = jax.numpy.zeros(())
 
             def q_apply(_, x):  # the only policy of the suite, always

@@ -136,6 +136,12 @@ def policy_input_fn(net_cfg, env):
     return policy_input, cols, in_mask
 
 
+def input_normalizer(norm: Normalizer, cols) -> Normalizer:
+    """The normaliser's entries of the network input's columns `cols` (`policy_input_fn`'s map;
+    gathered once per rollout, not at every step)."""
+    return Normalizer(norm.mean[cols], norm.var[cols], norm.count)
+
+
 def _gaussian_logp(x, mean, log_std):
     return jnp.sum(-0.5 * ((x - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi),
                    axis=-1)
@@ -253,19 +259,15 @@ def make_train(cfg, env) -> Trainer:
         state = jax.vmap(lambda k: env.reset(k, d, guide_scale=g, push_scale=push))(keys)
         return state, jnp.zeros(n_envs, jnp.int32), jnp.zeros(n_envs)
 
-    def input_norm(norm):
-        """The normaliser's entries of the network input's columns (gathered once per rollout)."""
-        return Normalizer(norm.mean[in_cols_j], norm.var[in_cols_j], norm.count)
-
     def net_input(norm_in, obs):
-        """(raw, normalised) network inputs of `obs` under `input_norm`'s normaliser."""
+        """(raw, normalised) network inputs of `obs` under `input_normalizer`'s normaliser."""
         x = policy_input(obs)
         return x, normalize(norm_in, x, in_mask_j)
 
     def forward(ts: TrainState, obs, key, norm_in=None):
         """The collection's network pass on a batch of observations: the sampled action, its
         log-likelihood, the value, and the raw and normalised network inputs."""
-        x, xn = net_input(input_norm(ts.norm) if norm_in is None else norm_in, obs)
+        x, xn = net_input(input_normalizer(ts.norm, in_cols_j) if norm_in is None else norm_in, obs)
         mean = pi.apply(ts.params["policy"], xn)
         action = mean + jnp.exp(ts.params["log_std"]) * jax.random.normal(key, mean.shape)
         return {"x_raw": x, "x": xn, "action": action,
@@ -279,7 +281,7 @@ def make_train(cfg, env) -> Trainer:
         env_state, ep_t, ep_ret = envs
         k_fresh, k_roll = keys[0], keys[1]
         fresh, _, _ = reset_envs(k_fresh, curr)
-        norm_in = input_norm(ts.norm)
+        norm_in = input_normalizer(ts.norm, in_cols_j)
 
         def step(carry, key):
             state, t, ret = carry

@@ -3,7 +3,8 @@
 Plain Python (no JAX): the reports layer and the tests read recipes fast. A committed run folder
 (models/policies/<run>/, models/baselines/<run>/) holds `recipe.json`:
 
-    run, command       the run's name and the command line that trains it ("train" or "dqn")
+    run, command       the run's name and the command line that trains it ("train", "dqn" or
+                       "distill")
     start              the flags it was first trained with ({"--flag": value}; true: a bare flag)
     changes            every mid-run change of a flag: [{step, flag, value, why}], oldest first;
                        the change holds from that step (a resume from the checkpoint there) on
@@ -43,7 +44,8 @@ from biped_switch.paths import BASELINE_DIR, COMMITTED_DIR, REPO, rel
 RECIPE = "recipe.json"
 DONE = "replay.json"  # written in a replay's run folder once every segment has run
 ENDS = ("curriculum", "total steps", "by hand")
-TOTAL = {"train": "--total-steps", "dqn": "--total-steps"}  # each command's step ceiling flag
+# each command's step ceiling flag
+TOTAL = {"train": "--total-steps", "dqn": "--total-steps", "distill": "--total-steps"}
 
 
 class RecipeError(ValueError):
@@ -119,7 +121,7 @@ def argv(flags: dict) -> list[str]:
 
 def command_argv(rec: dict, flags: dict, out: pathlib.Path) -> list[str]:
     """A segment's arguments for its command line, writing into <out>/<run>/."""
-    if rec["command"] == "train":
+    if rec["command"] in ("train", "distill"):
         return argv(flags) + ["--out", str(out), "--name", rec["run"]]
     return argv(flags) + ["--out", str(pathlib.Path(out) / rec["run"])]
 

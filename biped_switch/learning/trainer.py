@@ -305,9 +305,10 @@ def probe_markdown(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def saved_setting(run_dir: pathlib.Path, section: str, key: str) -> float | None:
+def saved_setting(run_dir: pathlib.Path, section: str | None, key: str) -> float | None:
     """A setting a run was last trained with (its config.json under runs/, else the committed
-    copy's; None when neither has it), so that a resume keeps a flag's value (a lowered learning
-    rate, a finer guide notch) without repeating the flag."""
-    v = runs_lib.read_config(run_dir, committed=True).get(section, {}).get(key)
+    copy's; None when neither has it; `section` None: a top-level key), so that a resume keeps a
+    flag's value (a lowered learning rate, a finer guide notch, its chunk) without repeating it."""
+    saved = runs_lib.read_config(run_dir, committed=True)
+    v = (saved.get(section, {}) if section else saved).get(key)
     return None if v is None else float(v)

@@ -104,9 +104,47 @@ def dqn_figure(run_dir, title: str | None = None):
     return _finish(fig, axes, run_dir, title)
 
 
+def distill_figure(run_dir, title: str | None = None):
+    """The distilled student's curves (metrics.csv): episode success and falls on its training
+    tracks beside the teacher's share of the actions, the action MSE on the buffer and on the
+    states just visited, and which teacher policy labelled the steps; `title` default: the run dir."""
+    import matplotlib.pyplot as plt  # lazy, as ppo_figure
+
+    rows = [r for r in _rows(run_dir) if r.get("dagger/mix") not in (None, "")]
+    ep_rows = [r for r in rows if float(r.get("episode/count") or 0) > 0]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 3.6))
+    for key, src in (("episode/success", ep_rows), ("episode/fell", ep_rows),
+                     ("episode/progress_frac", ep_rows), ("dagger/mix", rows)):
+        xy = curve_series(src, key)
+        axes[0].plot(xy[:, 0], xy[:, 1], "k:" if key == "dagger/mix" else "-", label=key)
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[0].legend(fontsize=8)
+    axes[0].set_title("training episodes; P(teacher acts)")
+    for key in ("loss/action_mse", "dagger/onpolicy_mse"):
+        xy = curve_series(rows, key)
+        axes[1].semilogy(xy[:, 0], xy[:, 1], label=key)
+    axes[1].legend(fontsize=8)
+    axes[1].set_title("action MSE: buffer minibatch, states just visited")
+    keys = sorted(k for k in rows[0] if k.startswith("teacher/active_")) if rows else []
+    for key in keys:
+        xy = curve_series(rows, key)
+        axes[2].plot(xy[:, 0], xy[:, 1], label=f"policy {key.rsplit('_', 1)[1]}")
+    axes[2].set_ylim(-0.02, 1.02)
+    axes[2].legend(fontsize=8)
+    axes[2].set_title("teacher's active policy (share of steps)")
+    return _finish(fig, axes, run_dir, title)
+
+
+def is_distill_run(rows: list[dict]) -> bool:
+    """Whether metrics.csv rows are a distillation's (its mixing column)."""
+    return bool(rows) and "dagger/mix" in rows[0]
+
+
 def run_figure(run_dir, title: str | None = None):
-    """`dqn_figure` of a DQN run, else `ppo_figure`."""
-    return (dqn_figure if is_dqn_run(_rows(run_dir)) else ppo_figure)(run_dir, title)
+    """`dqn_figure` of a DQN run, `distill_figure` of a distillation, else `ppo_figure`."""
+    rows = _rows(run_dir)
+    fig = dqn_figure if is_dqn_run(rows) else distill_figure if is_distill_run(rows) else ppo_figure
+    return fig(run_dir, title)
 
 
 def _finish(fig, axes, run_dir, title):
@@ -133,6 +171,11 @@ def _save(make_figure, run_dir, out_png) -> None:
 def ppo_curves(run_dir: pathlib.Path, out_png: pathlib.Path) -> None:
     """`ppo_figure` of a run, saved to `out_png` (its curves.png)."""
     _save(ppo_figure, run_dir, out_png)
+
+
+def distill_curves(run_dir, out_png) -> None:
+    """`distill_figure` of a run, saved to `out_png` (its curves.png)."""
+    _save(distill_figure, run_dir, out_png)
 
 
 def dqn_curves(run_dir, out_png) -> None:

@@ -57,6 +57,19 @@ def trial_events(rec: dict):
             "CoM over feet"], rows
 
 
+def active_strip(ax, active: np.ndarray, names, ylabel: str) -> None:
+    """A strip on `ax` coloured by the policy index `active` at each control step."""
+    t = np.arange(len(active))
+    for j, name in enumerate(names):
+        on = active == j
+        if on.any():
+            ax.fill_between(t, 0, 1, where=on, step="mid", color=style.policy_colour(name),
+                            alpha=0.7, label=name, lw=0)
+    ax.set_yticks([])
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+
+
 def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = None):
     """The paper's Fig. 5 (one drawing for the CLI, the demo and the notebook): estimator outputs
     while an artifact is detected (green lines: detections, red: switches), the active policy, and
@@ -102,17 +115,9 @@ def fig5_figure(rec: dict, track, title: str = "", threshold: float | None = Non
         ax0.set_ylim(-0.02, 1.02)
         ax0.set_title("thick: the detected artifact's estimator; faint: every estimator at every "
                       "step", fontsize=8)
-    # active policy strip
     active = rec["active"][:n].astype(int)
     names = policy_names(rec)
-    for j, name in enumerate(names):
-        on = active == j
-        if on.any():
-            axp.fill_between(t, 0, 1, where=on, step="mid", color=style.policy_colour(name),
-                             alpha=0.7, label=name, lw=0)
-    axp.set_yticks([])
-    axp.set_ylabel("active", fontsize=8)
-    axp.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    active_strip(axp, active, names, "active")
     # terrain under the CoM, feet and CoM heights
     boxes = track.boxes
     x = rec["com_x_m"][:n]

@@ -276,6 +276,10 @@ def paper_claims(rows: list[dict]) -> list[dict]:
         ("ours: with setup policies too, the learned rule beats the lookup table (success)",
          ("learned_setup", "lookup_context_setup"),
          lambda: beats_all("learned_setup", ("lookup_context_setup",), show_all=True)),
+        # "compose, then distil" against training one policy on everything (learning/distillation.py)
+        ("ours: a student distilled from the composed suite beats the end-to-end policy trained "
+         "by RL (success)", ("student", "end_to_end"),
+         lambda: beats_all("student", ("end_to_end",), show_all=True)),
         ("ours: without overlap the learned rule collapses (success)",
          ("learned", "learned_no_overlap"),
          lambda: ("holds" if compare(by["learned_no_overlap"], by["learned"]) < 0 else "fails",

@@ -76,14 +76,14 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand",
     setup_r = {n: runs_lib.run_record(runs_lib.find_policy(n, init, runs))
                for n in SETUP_SUITE}
     setup_r = {n: r for n, r in setup_r.items() if r is not None}
+    setup_parts = {**ours_parts, **{n: r["wall_s"] / 3600 for n, r in setup_r.items()}}
+    setup_notes = pol_notes + data_notes + [x for r in setup_r.values() for x in r["notes"]]
     if setup_r:
-        parts = {**ours_parts, **{n: r["wall_s"] / 3600 for n, r in setup_r.items()}}
         rows.append({"method": "ours_setup",
-                     "hours": sum(parts.values()) if ours_ok else None, "parts": parts,
+                     "hours": sum(setup_parts.values()) if ours_ok else None, "parts": setup_parts,
                      "setup_env_steps": {n: r["step"] for n, r in setup_r.items()},
                      "device": ", ".join(sorted({r["device"] for r in setup_r.values()})),
-                     "status": status(pol_notes + data_notes
-                                      + [x for r in setup_r.values() for x in r["notes"]], ours_ok),
+                     "status": status(setup_notes, ours_ok),
                      "paper_hours": paper.TABLE3_H["ours"]})
     # ours with the learned when rule: the new policy, its context sweeps with approach records
     # and the rule's training, in place of the paper's sweeps and estimators
@@ -115,6 +115,16 @@ def retrain_cost(runs: pathlib.Path, results: pathlib.Path, init: str = "stand",
                  "device": e2e["device"] if e2e else "?",
                  "status": status(e2e["notes"] if e2e else [], e2e is not None),
                  "paper_hours": paper.TABLE3_H["end_to_end"]})
+    # compose, then distil (learning/distillation.py): the suite with its setup policies, plus
+    # distilling it again into one student
+    stu = runs_lib.run_record(runs_lib.find_policy("student", init, runs))
+    if stu is None:
+        missing.append(f"distilled student run student_{init}")
+    elif setup_r:
+        parts = {**setup_parts, "distillation": stu["wall_s"] / 3600}
+        rows.append({"method": "distilled", "hours": sum(parts.values()) if ours_ok else None,
+                     "parts": parts, "distill_env_steps": stu["step"], "device": stu["device"],
+                     "status": status(setup_notes + stu["notes"], ours_ok), "paper_hours": None})
     return {"rows": rows, "missing": missing, "init": init, "runs": str(runs), "results": str(results),
             "notes": "hours of wall-clock time read from progress.json / sweep and estimator logs"}
 
@@ -126,7 +136,7 @@ def table3_markdown(doc: dict) -> str:
         parts = ", ".join(f"{k} {v:.2f}" if v is not None else f"{k} -" for k, v in r["parts"].items())
         h = f"{r['hours']:.2f}" if r["hours"] is not None else "not measured"
         lines.append(f"| {r['method']} | {h} | {parts} | {r['device']} | {r.get('status', '?')} | "
-                     f"{r['paper_hours']:.0f} |")
+                     f"{'-' if r['paper_hours'] is None else format(r['paper_hours'], '.0f')} |")
     if doc["missing"]:
         lines.append("")
         lines.append("missing logs: " + "; ".join(doc["missing"]))

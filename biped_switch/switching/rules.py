@@ -303,7 +303,7 @@ def reads_context(est_apply) -> bool:
     return bool(getattr(est_apply, "reads_context", False))
 
 
-def _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
+def switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules: Rules,
                     det_apply=None, det_params=None):
     """(ss, state, live, u01) -> (action, ss, controller inputs, switched now): one control step
     of the switching controller for a batch; switches of ended episodes are not counted."""
@@ -357,7 +357,7 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
         track_ids = jax.random.randint(k_run, (n_envs,), 0, env.bank.size)
     state = reset_by_track(env, reset_keys, track_ids,
                            guide_scale=guide_scale)
-    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules,
+    switch_act = switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules,
                                  det_apply, det_params)
     slots = jnp.arange(state.info["art_x0"].shape[-1])
 
@@ -400,7 +400,7 @@ def trace_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
     is frozen (its whole state) once it ends and the record runs to the horizon (`ended` = 1)."""
     state = reset_by_track(env, rng[None], jnp.reshape(jnp.asarray(track_id), (1,)),
                            guide_scale=guide_scale)
-    switch_act = _switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules,
+    switch_act = switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules,
                                  det_apply, det_params)
 
     def act(ss, state, live, key):
