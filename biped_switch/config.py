@@ -474,30 +474,24 @@ def default_setup_config(target: str = "gaps") -> config_dict.ConfigDict:
 
 
 def default_distill_config(preset: str = "cpu") -> config_dict.ConfigDict:
-    """The distilled student (learning/distillation.py, `python -m biped_switch.distill`): a
-    train config (its network and env sections are the behaviour policies', so the student loads
-    as a policy) with a `distill` section. DAgger on mixed 7-artifact tracks under Table II's
-    conditions (guides 0, no pushes, a 60 s time-out), labelled by the composed controller."""
+    """The distilled student (learning/distillation.py): a train config (network and env as the
+    behaviour policies', so it loads as a policy) with a `distill` section: DAgger on mixed
+    tracks under Table II's conditions, labelled by the composed controller."""
     cfg = default_train_config("cpu")
     cfg.policy = "student"
     cfg.n_tracks = 512  # mixed tracks STUDENT_TRACK_SEED + seed + i
     cfg.distill = config_dict.create(
         teacher="lookup_context_setup",  # a Table II row (methods.py) with a switching rule
         teacher_runs="runs",  # its policies: this folder, then models/policies/
-        total_env_steps=40_000_000,
-        chunk_env_steps=500_000,  # checkpoint period
-        num_envs=256,
-        unroll_length=32,  # control steps per collection (8,192 env steps)
+        total_env_steps=40_000_000, chunk_env_steps=500_000,  # the ceiling; checkpoint period
+        num_envs=256, unroll_length=32,  # control steps per collection (8,192 env steps)
         horizon_s=60.0,  # episode time-out, as Table II's horizon
-        mix_start=1.0,  # P(the teacher's action is executed), linear from this ...
-        mix_end=0.0,  # ... to this ...
-        mix_decay_steps=4_000_000,  # ... over these env steps
+        # P(the teacher's action is executed): linear from mix_start to mix_end over the steps
+        mix_start=1.0, mix_end=0.0, mix_decay_steps=4_000_000,
         action_noise_std=0.0,  # Gaussian noise on the student's executed action (0: none)
         buffer_size=1_048_576,  # aggregate rows (about 0.9 GB at 215 float32 columns)
-        updates_per_iteration=8,  # Adam steps per collection
-        batch_size=2048,  # rows per Adam step, uniform over the buffer
-        learning_rate=3e-4,
-        max_grad_norm=1.0,
+        # Adam steps per collection, each on batch_size rows drawn uniformly from the buffer
+        updates_per_iteration=8, batch_size=2048, learning_rate=3e-4, max_grad_norm=1.0,
         log_std=-1.6,  # the saved policy's action std [log] (about 0.2), for a PPO fine-tune
         log_every=10,  # iterations per progress line
     )

@@ -84,6 +84,8 @@ def main(argv=None) -> int:
     p.add_argument("--trials", type=int, default=500, help="first trials of each point")
     p.add_argument("--window-from", type=float, default=0.0,
                    help="the trend test uses points at or after this env step")
+    p.add_argument("--tracks", default="Table II's",
+                   help="whose tracks the points ran on, for the titles (e.g. \"the tuning\")")
     p.add_argument("--out", required=True)
     a = p.parse_args(argv)
     if a.trials < 1:
@@ -110,7 +112,8 @@ def main(argv=None) -> int:
            "points": [{k: v for k, v in r.items() if k != "success"} for r in pts],
            "trend": tr, "binomial_std_pct": binom_std, "halves": halves}
     (out / "curve.json").write_text(json.dumps(doc, indent=2) + "\n")
-    lines = [f"# {a.method}: success on Table II's first {a.trials} trials against env steps", "",
+    lines = [f"# {a.method}: success on the first {a.trials} trials of {a.tracks} tracks against "
+             f"env steps", "",
              "| env steps | success % (95% CI) | distance % | from |", "|---|---|---|---|"]
     for r in pts:
         lo, hi = r["success_ci"]
@@ -136,7 +139,7 @@ def main(argv=None) -> int:
     fig, ax = plt.subplots(figsize=(7, 3.6))
     ci = np.array([r["success_ci"] for r in pts])
     ax.errorbar(steps / 1e6, y, yerr=[y - ci[:, 0], ci[:, 1] - y], fmt="o", capsize=3,
-                label=f"first {a.trials} Table II trials (95% Wilson CI)")
+                label=f"first {a.trials} trials of {a.tracks} tracks (95% Wilson CI)")
     xs = np.array([steps[win].min(), steps[win].max()])
     ax.plot(xs / 1e6, tr["mean_pct"] + tr["slope_pct_per_10M"] * (xs - steps[win].mean()) / 1e7,
             "k--", lw=1, label=f"trend {tr['slope_pct_per_10M']:+.2f} pts / 10M steps")

@@ -28,8 +28,9 @@ def _recorded(run_dir: pathlib.Path) -> tuple[dict, dict]:
 def replayed(tmp_path_factory):
     """{run: (config of its last segment, argv, warm-start path)}: each recipe's last segment
     given to its command's real `main`, whose trainer only keeps the config."""
-    from biped_switch import dqn, train
+    from biped_switch import distill, dqn, train
     from biped_switch.learning import dqn_train, trainer
+    from biped_switch.products import student
 
     seen = {}
 
@@ -43,6 +44,7 @@ def replayed(tmp_path_factory):
     mp = pytest.MonkeyPatch()
     mp.setattr(trainer, "train", keep_ppo)
     mp.setattr(dqn_train, "train_dqn", keep_dqn)
+    mp.setattr(student, "train", keep_dqn)
     out, results = tmp_path_factory.mktemp("replay"), {}
     try:
         for d in RUNS:
@@ -51,7 +53,7 @@ def replayed(tmp_path_factory):
             warm = str(REPO / rec["warm_start"]["path"]) if rec.get("warm_start") else None
             flags = {**seg["flags"], **({"--warm-start": warm} if warm else {})}
             args = recipe_lib.command_argv(rec, flags, out)
-            main = {"train": train.main, "dqn": dqn.main}[rec["command"]]
+            main = {"train": train.main, "dqn": dqn.main, "distill": distill.main}[rec["command"]]
             seen.clear()
             with runs_lib.no_committed_copy():
                 assert main(args) == 0
@@ -88,7 +90,8 @@ def test_recipe_matches_the_recorded_run(run, replayed):
     diff = recipe_lib.replay_config_diff(cfg, mine)
     diff.pop("warm_start", None)
     if rec["ends"] == "by hand":  # the replay stops where the run was stopped
-        assert diff.pop("total_timesteps") == [total, rec["final_step"]]
+        ceiling = {"distill": "distill.total_env_steps"}.get(rec["command"], "total_timesteps")
+        assert diff.pop(ceiling) == [total, rec["final_step"]]
     declared = {k: [v["recorded"], v["replay"]] for k, v in rec["config_differences"].items()}
     assert diff == declared, f"{run}: replayed config differs from config.json beyond the recipe"
     assert all(v["why"] for v in rec["config_differences"].values())

@@ -307,7 +307,8 @@ def run_notes(run_dir, step_goal: bool = True) -> list[str]:
         last = {k: curve_series(rows, k)[-1:, 1] for k in ("difficulty", "guide_scale")}
         if all(len(v) for v in last.values()):
             c = {"stage_name": "last logged", **{k: float(v[0]) for k, v in last.items()}}
-    if c is not None and (c["guide_scale"] > 1e-6 or c["difficulty"] < 1 - 1e-6):
+    # a run without a curriculum (the distilled student) records only its stage name
+    if c is not None and (c.get("guide_scale", 0.0) > 1e-6 or c.get("difficulty", 1.0) < 1 - 1e-6):
         notes.append(f"curriculum unfinished ({c['stage_name']} d={round(float(c['difficulty']), 3)} "
                      f"guide={round(float(c['guide_scale']), 3)})")
     elif ("curriculum_done" in prog and not prog["curriculum_done"]

@@ -123,7 +123,8 @@ def horizon_for(trials: int, n_artifacts: int, margin: float = 1.4) -> float:
 def in_training(runs) -> list[str]:
     """'<policy>: <why>' for each found stand-init policy whose run is not finished, the
     end-to-end `mixed` one included (`runs.run_notes`: short of its step goal is not counted, an
-    unfinished curriculum is), and for the DQN selector short of its step goal."""
+    unfinished curriculum is), and for the DQN selector and the distilled student short of
+    their step goals (neither has a curriculum)."""
     out = []
     for n in pol.POLICY_NAMES + ("mixed",):
         ckpt = runs_lib.find_policy(n, "stand", pathlib.Path(runs))
@@ -135,6 +136,9 @@ def in_training(runs) -> list[str]:
     dqn_dir = runs_lib.find_dqn(runs, "stand")  # a selector has no curriculum: its step goal counts
     if dqn_dir is not None and (notes := runs_lib.run_notes(dqn_dir)):
         out.append(f"dqn selector: {'; '.join(notes)}")
+    student = runs_lib.find_policy("student", "stand", pathlib.Path(runs))
+    if student is not None and (notes := runs_lib.run_notes(student.parent.parent)):
+        out.append(f"student: {'; '.join(notes)}")
     return out
 
 def untrained_policies(runs) -> list:
