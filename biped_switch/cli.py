@@ -9,6 +9,7 @@ import argparse
 import importlib
 import os
 import sys
+import threading
 
 from biped_switch import paths
 from biped_switch.names import BACKEND_CHOICES, INITS
@@ -106,6 +107,8 @@ def run(main) -> None:
         # learning.checkpoints.CheckpointError by name: cli.py imports no Orbax
         if not isinstance(e, RunFileError) and type(e).__name__ != "CheckpointError":
             raise
+        # Orbax's loop thread may fail on the closed loop while this process exits: say nothing
+        threading.excepthook = sys.unraisablehook = lambda *_: None
         print(f"error: {e}", file=sys.stderr)
         sys.stdout.flush()
         sys.stderr.flush()

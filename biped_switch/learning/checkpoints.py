@@ -4,9 +4,11 @@ the DQN and the switch estimators. A damaged file becomes an error that names it
 from __future__ import annotations
 
 import json
+import logging
 import os
 import pathlib
 import shutil
+import sys
 import warnings
 
 import orbax.checkpoint as ocp
@@ -25,6 +27,16 @@ def write_tree(path: pathlib.Path, tree, save_args=None) -> pathlib.Path:
     return path
 
 
+def _quiet_closed_loop(hook):
+    """`sys.excepthook` that drops "Event loop is closed": TensorStore's callbacks print it (via
+    PyErr_Print) when they reach Orbax's loop after a failed restore has closed it."""
+    def quiet(kind, value, tb):
+        if not (isinstance(value, RuntimeError) and "Event loop is closed" in str(value)):
+            hook(kind, value, tb)
+    quiet.quiet_closed_loop = True
+    return quiet
+
+
 def read_tree(path: pathlib.Path, item=None):
     """The tree of the Orbax checkpoint at `path` (in `item`'s structure when given). A missing,
     truncated or otherwise damaged checkpoint raises CheckpointError naming the folder, instead of
@@ -32,10 +44,20 @@ def read_tree(path: pathlib.Path, item=None):
     path = pathlib.Path(path).resolve()
     if not path.is_dir():
         raise CheckpointError(f"{path}: no checkpoint folder there")
+    # On a damaged checkpoint Orbax's other read tasks fail too, and asyncio logs each as "Task
+    # exception was never retrieved" as it is collected, during the restore or after it: the
+    # CheckpointError says it once, so that logger is quiet while restoring and after a failure.
+    if not getattr(sys.excepthook, "quiet_closed_loop", False):
+        sys.excepthook = _quiet_closed_loop(sys.excepthook)
+    aio = logging.getLogger("asyncio")
+    level = aio.level
+    aio.setLevel(logging.CRITICAL)
     try:
         with warnings.catch_warnings():  # restoring on the host it was saved for: no sharding to give
             warnings.filterwarnings("ignore", message="Sharding info not provided")
-            return ocp.PyTreeCheckpointer().restore(path, item=item)
+            tree = ocp.PyTreeCheckpointer().restore(path, item=item)
+        aio.setLevel(level)
+        return tree
     except Exception as e:  # Orbax wraps TensorStore's errors in several exception types
         first = str(e).strip().splitlines()[0] if str(e).strip() else ""
         raise CheckpointError(f"{path}: damaged or truncated checkpoint, cannot restore it "
