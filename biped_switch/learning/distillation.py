@@ -72,7 +72,6 @@ class Dagger(NamedTuple):
     reset_envs: Callable  # rng -> Envs
     iteration: Callable  # (DaggerState, Envs, rng, mix) -> (DaggerState, Envs, metrics)
     collect: Callable  # (DaggerState, Envs, rng, mix, fresh Envs) -> (Envs, rollout dict)
-    student: Callable  # (params, norm, obs (B, >= policy obs)) -> actions (B, A) in [-1, 1]
     steps_per_iteration: int
 
 
@@ -205,13 +204,8 @@ def make_dagger(cfg, env, teacher: Teacher) -> Dagger:
             metrics[f"teacher/active_{i}"] = jnp.mean((tr["active"] == i).astype(jnp.float32))
         return ds, envs, metrics
 
-    def student(params, norm, obs):
-        x = policy_input(obs[..., :obs_size])
-        return student_action(params, ppo.input_normalizer(norm, in_cols_j), x, None)
-
     # the state is donated: the buffer is updated in place, not copied every iteration
-    return Dagger(init, jax.jit(reset_envs), jax.jit(iteration, donate_argnums=0), collect, student,
-                  n_batch)
+    return Dagger(init, jax.jit(reset_envs), jax.jit(iteration, donate_argnums=0), collect, n_batch)
 
 
 def checkpoint_tree(ds: DaggerState, log_std: float) -> dict:

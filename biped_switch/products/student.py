@@ -31,6 +31,8 @@ from biped_switch.simulation.rollout import reset_by_track, run_episodes
 from biped_switch.switching import rules as sw
 
 BUFFER_FILE = "buffer.npz"
+# the iteration's metrics that are means over the episodes it ended
+EPISODE_MEANS = ("episode/success", "episode/fell", "episode/progress_frac")
 
 
 def teacher_setup(cfg) -> MultiSetup:
@@ -146,13 +148,14 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
             step += spi
             it += 1
             m = {k: float(v) for k, v in jax.device_get(m).items()}
-            n = m["episode/count"]
-            for k, v in m.items():  # episode means over the log window, weighted by episodes
-                acc[k] = acc.get(k, 0.0) + (v * n if k.startswith("episode/") and k != "episode/count" else v)
+            # over the log window: episode means weighted by episodes ended, the rest per iteration
+            weight = {k: m["episode/count"] if k in EPISODE_MEANS else 1.0 for k in m}
+            for k, v in m.items():
+                acc[k] = acc.get(k, 0.0) + v * weight[k]
             if it % int(d.log_every) == 0 or step >= chunk_end:
-                n_it, n_ep = it, acc["episode/count"]
-                row = {k: (v / max(n_ep, 1.0) if k.startswith("episode/") and k != "episode/count"
-                           else v if k == "episode/count" else v / n_it) for k, v in acc.items()}
+                n_ep = acc["episode/count"]
+                row = {k: v / (max(n_ep, 1.0) if k in EPISODE_MEANS else 1.0 if k == "episode/count"
+                               else it) for k, v in acc.items()}
                 acc, it = {}, 0
                 now = time.perf_counter()
                 sps = (step - steps_log) / max(now - t_log, 1e-9)
@@ -172,8 +175,7 @@ def train(cfg, run_dir: pathlib.Path, max_chunks: int | None = None, print_fn=pr
         progress = {"step": step, "wall_s": wall_s, "chunk_train_s": train_s,
                     "env_steps_per_s": (step - chunk_start) / train_s, "compile_s": compile_s,
                     "samples_labelled": step, "buffer_rows": int(ds.buffer.count),
-                    "mix": dist.mix_at(step, float(d.mix_start), float(d.mix_end),
-                                       int(d.mix_decay_steps)),
+                    "mix": mix,
                     "teacher": d.teacher, "teacher_policies": list(setup.suite.sources),
                     # no curriculum: Table II's conditions throughout
                     "curriculum": {"stage_name": "distillation", "difficulty": 1.0,
