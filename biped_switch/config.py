@@ -63,10 +63,8 @@ def default_model_config() -> config_dict.ConfigDict:
         xml_path="",  # empty: models/biped.xml of this package's checkout
         box_capacity=96,  # terrain box slots compiled into the model (a shape key)
         max_geom_pairs=32,  # MJX broad-phase cull; 32 missed no contact in tests (design.md)
-        sim_dt_s=0.005,
-        n_substeps=4,  # control period = 0.02 s (50 Hz)
-        solver_iterations=4,
-        ls_iterations=8,
+        sim_dt_s=0.005, n_substeps=4,  # control period = 0.02 s (50 Hz)
+        solver_iterations=4, ls_iterations=8,
     )
 
 
@@ -494,7 +492,9 @@ def default_distill_config(preset: str = "cpu") -> config_dict.ConfigDict:
         updates_per_iteration=8, batch_size=2048, learning_rate=3e-4, max_grad_norm=1.0,
         log_std=-1.6,  # the saved policy's action std [log] (about 0.2), for a PPO fine-tune
         log_every=10,  # iterations per progress line
-    )
+        # `distill --memory-probe` (products/student_memory.py): histories of k inputs, Adam
+        memory_probe=config_dict.create(ks=(1, 4), steps=12000, batch=2048, holdout=0.1,
+                                          eval_every=3000))
     if preset != "cpu":
         raise ValueError(f"unknown preset {preset!r}; the distillation has a cpu preset only")
     return cfg

@@ -70,13 +70,20 @@ def main(argv=None) -> int:
                    help="--trace: the first track's seed (default Table II's)")
     p.add_argument("--results", default="experiments/results/student",
                    help="--trace: where the drawing and the GIF go")
+    p.add_argument("--memory-probe", action="store_true",
+                   help="only measure whether a memory would help: fit the labels of the run's "
+                        "buffer from the last 1 and 4 inputs (distill.memory_probe), into --results")
     p.add_argument("--commit", action="store_true",
                    help="copy the run's latest checkpoint, config, logs and curves to "
                         "models/policies/<name>/ (then git-commit that folder) and exit")
+    p.add_argument("--checkpoint", default=None,
+                   help="--commit: this checkpoint folder (one chosen on tuning tracks) in place "
+                        "of the run's latest")
     a = p.parse_args(argv)
     run_dir = pathlib.Path(a.out) / a.name
     if a.commit:
-        print(f"committed copy: {runs_lib.commit_run(run_dir, plot_fn=curves.distill_curves)}")
+        print(f"committed copy: "
+              f"{runs_lib.commit_run(run_dir, plot_fn=curves.distill_curves, ckpt=a.checkpoint)}")
         return 0
     cfg = default_distill_config()
     cfg.seed, cfg.env.backend = a.seed, a.backend
@@ -96,6 +103,16 @@ def main(argv=None) -> int:
             raise SystemExit(f"error: {run_dir} was made with distill.{key} = {old!r}, not "
                              f"{cfg.distill[key]!r}; use another --name")
     from biped_switch.products import student  # JAX and the teacher's parts: after the checks
+    if a.memory_probe:
+        from biped_switch.products import student_memory as probe
+        mp = cfg.distill.memory_probe
+        res = probe.memory_probe(run_dir, int(cfg.distill.num_envs), tuple(mp.ks), float(mp.holdout),
+                                 steps=int(mp.steps), batch=int(mp.batch),
+                                 eval_every=int(mp.eval_every),
+                                 hidden=tuple(cfg.network.policy_hidden),
+                                 lr=float(cfg.distill.learning_rate))
+        print(f"wrote {probe.write(res, pathlib.Path(a.results))}")
+        return 0
     if a.trace is not None:
         paths = student.draw_trial(cfg, run_dir, a.trace, a.track_seed, pathlib.Path(a.results))
         print("\n".join(f"wrote {p}" for p in paths))

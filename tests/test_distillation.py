@@ -41,6 +41,26 @@ def test_mix_schedule_by_hand():
     assert dist.mix_at(5, 1.0, 0.3, 0) == pytest.approx(0.3)  # no decay: the end value
 
 
+def test_memory_probe_reads_each_envs_own_past():
+    """history_index by hand; and a label that is env e's previous input: the probe must fit it
+    from k = 2 and not from k = 1. Offsets of 1 row (the previous env) instead of n_envs rows,
+    or a history taken forward in time, leave k = 2 no better than k = 1."""
+    from biped_switch.products.student_memory import fit_history, history_index
+
+    np.testing.assert_array_equal(history_index(np.array([8, 9]), 3, 4), [[8, 4, 0], [9, 5, 1]])
+    n_envs, n = 4, 6000
+    x = np.random.default_rng(0).normal(size=(n, 3)).astype(np.float32)
+    y = np.zeros((n, 1), np.float32)
+    y[n_envs:, 0] = x[:-n_envs, 0]  # row r's label: its env's input one step earlier
+    rows = np.arange(n_envs, n)
+    train, test = rows[:5000], rows[5000:]
+    fit = dict(hidden=(32,), steps=600, batch=256, lr=1e-2)
+    one = fit_history(x, y, 1, n_envs, train, test, **fit)
+    two = fit_history(x, y, 2, n_envs, train, test, **fit)
+    assert one["test_mse"] > 0.8  # Var(label) = 1: the present input says nothing of it
+    assert two["test_mse"] < 0.1 * one["test_mse"]
+
+
 def test_buffer_ring_and_its_file_order():
     buf = dist.Buffer(jnp.zeros((5, 2)), jnp.zeros((5, 1)), jnp.int32(0), jnp.int32(0))
     rows = np.arange(16, dtype=np.float32).reshape(8, 2)

@@ -646,6 +646,13 @@ def test_failures_by_context_by_hand():
     assert out["stairs"] == {"gaps": [1, 0]}
     md = table2_report.failures_markdown({"m": out})
     assert "| m | 0 / 1 (0.0%) | 2 / 2 (100.0%) |" in md  # "after start" first
+    # where: 0.1 m onto the gap, and 0.5 m before it (in range, blamed on gaps)
+    where = table2_report.fall_positions(tracks, progress, fell, fail_kind)
+    assert where["gaps"]["on"] == 1 and where["gaps"]["before"] == 1 and where["gaps"]["after"] == 0
+    assert where["gaps"]["x_m"] == pytest.approx([0.1, -0.5], abs=1e-3)
+    assert where["jumps"]["x_m"] == [] and where["stairs"]["x_m"] == []
+    md = table2_report.fall_positions_markdown({"m": where})
+    assert "| m | 0 / 0 / 0 (-) | 1 / 1 / 0 (-0.20) | 0 / 0 / 0 (-) |" in md
 
     # the same four trials with their switches logged (slot per artifact, NaN: no switch)
     nan = np.nan

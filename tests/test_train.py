@@ -535,3 +535,25 @@ def test_normalizer_update_of_some_columns_leaves_the_others():
     np.testing.assert_allclose(var[[0, 2, 5]], np.asarray(full.var)[[0, 2, 5]], rtol=1e-6)
     np.testing.assert_array_equal(mean[[1, 3, 4]], old[[1, 3, 4]])
     assert float(out.count) == 14.0
+
+
+def test_a_committed_checkpoint_chosen_short_of_the_ceiling_is_not_in_training(tmp_path):
+    """commit_run with a chosen checkpoint (one picked on tuning tracks, not the latest) writes
+    chosen.json, and run_notes then does not count the step goal; committing the latest again
+    removes it, and the note comes back."""
+    run = tmp_path / "student_stand"
+    for step in (100, 200):
+        ck = run / "checkpoints" / f"{step:012d}"
+        ck.mkdir(parents=True)
+        (ck / runs_lib.PROGRESS).write_text(json.dumps({"step": step, "total_steps": 400}))
+    out = tmp_path / "committed"
+    runs_lib.commit_run(run, out_dir=out, ckpt=run / "checkpoints" / f"{100:012d}")
+    assert [c.name for c in runs_lib.checkpoints(out)] == [f"{100:012d}"]
+    assert json.loads((out / runs_lib.CHOSEN_FILE).read_text())["step"] == 100
+    assert runs_lib.run_notes(out) == []
+    assert runs_lib.run_notes(run) == ["at step 200 of 400"]  # the run itself: short of its goal
+    runs_lib.commit_run(run, out_dir=out)
+    assert not (out / runs_lib.CHOSEN_FILE).exists()
+    assert runs_lib.run_notes(out) == ["at step 200 of 400"]
+    with pytest.raises(FileNotFoundError, match="no progress.json"):
+        runs_lib.commit_run(run, out_dir=out, ckpt=tmp_path / "nowhere")

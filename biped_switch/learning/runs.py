@@ -39,6 +39,7 @@ except ImportError:  # pragma: no cover
     SummaryWriter = None
 
 PROGRESS = "progress.json"
+CHOSEN_FILE = "chosen.json"  # in a committed run: {"step", "from"} of a checkpoint chosen, not its latest
 _FALLBACK = [True]  # whether a run folder may fall back on its committed copy (`no_committed_copy`)
 
 
@@ -226,18 +227,27 @@ def train_log(run_dir: pathlib.Path, print_fn=print, committed_root: pathlib.Pat
 
 
 def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None,
-               plot_fn=None) -> pathlib.Path:
-    """Copies a run's latest checkpoint, config, metrics and curves (`plot_fn(run_dir, png)`,
-    e.g. `reports.curves.ppo_curves`; none when None) to models/policies/<run>/ (only the latest checkpoint), for a
-    later session or a fresh clone to resume from."""
+               plot_fn=None, ckpt: pathlib.Path | None = None) -> pathlib.Path:
+    """Copies a run's latest checkpoint (or `ckpt`, one chosen on tuning tracks), config, metrics
+    and curves (`plot_fn(run_dir, png)`, e.g. `reports.curves.ppo_curves`; none when None) to
+    models/policies/<run>/ (that checkpoint only), for a later session or a fresh clone to
+    resume from."""
     out = out_dir or COMMITTED_DIR / run_dir.name
-    ckpt = latest_checkpoint(run_dir)
+    if ckpt is not None and not (pathlib.Path(ckpt) / "progress.json").is_file():
+        raise FileNotFoundError(f"{ckpt} is not a checkpoint folder (no progress.json)")
+    chosen_step = ckpt is not None
+    ckpt = pathlib.Path(ckpt) if ckpt is not None else latest_checkpoint(run_dir)
     if ckpt is None:
         raise FileNotFoundError(f"no checkpoint under {run_dir}")
     if out.exists():
         shutil.rmtree(out / "checkpoints", ignore_errors=True)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     shutil.copytree(ckpt, out / "checkpoints" / ckpt.name)
+    chosen = out / CHOSEN_FILE  # says the step goal does not count: the checkpoint was chosen
+    if chosen_step:
+        chosen.write_text(json.dumps({"step": int(read_progress(ckpt)["step"]), "from": str(ckpt)}))
+    else:
+        chosen.unlink(missing_ok=True)
     for name in ("config.json", "metrics.csv", "train.log"):
         if (run_dir / name).exists():
             shutil.copy2(run_dir / name, out / name)
@@ -298,6 +308,9 @@ def run_notes(run_dir, step_goal: bool = True) -> list[str]:
     total = next((v for v in (prog.get("total_steps"), prog.get("total_env_steps"),
                               cfg.get("total_timesteps"), cfg.get("total_env_steps")) if v), None)
     finished = bool(prog.get("curriculum_done"))  # a PPO run stops there, short of its ceiling
+    chosen = d / CHOSEN_FILE  # a checkpoint chosen on tuning tracks (commit_run's ckpt)
+    if chosen.is_file() and "step" in prog:
+        finished |= json.loads(chosen.read_text()).get("step") == int(prog["step"])
     if (step_goal and not finished and "step" in prog and total is not None
             and int(prog["step"]) < int(total)):
         notes.append(f"at step {int(prog['step']):,} of {int(total):,}")

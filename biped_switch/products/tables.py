@@ -30,7 +30,8 @@ from biped_switch.paper import TABLE2_FAIL_ORDER
 from biped_switch.reports.fig4b import plot_switch_distances
 from biped_switch.reports.table1 import table1_markdown
 from biped_switch.reports.table2 import (ceiling_markdown, claims_markdown, failures_by_context,
-                                         failures_markdown, paper_claims, policy_on_falls,
+                                         failures_markdown, fall_positions,
+                                         fall_positions_markdown, paper_claims, policy_on_falls,
                                          policy_on_falls_markdown, suite_ceiling, switch_outcomes,
                                          switch_summary, switches_markdown, table2_markdown)
 from biped_switch.reports.table3 import retrain_cost as table3_doc, table3_markdown
@@ -171,17 +172,20 @@ def failures(out) -> int:
     settings = json.loads((out / "table2.json").read_text())["settings"]
     seed0 = settings.get("track_seed", MULTI_TRACK_SEED)
     tracks = [mixed_track(seed0 + i, settings["n_artifacts"]) for i in range(settings["trials"])]
-    by_method, on_falls = {}, {}
+    by_method, on_falls, where = {}, {}, {}
     with np.load(trials_path) as z:
         for m in dict.fromkeys(k.split("/")[0] for k in z.files):
             by_method[m] = failures_by_context(tracks, z[f"{m}/progress_frac"], z[f"{m}/fell"],
                                                z[f"{m}/fail_kind"])
+            where[m] = fall_positions(tracks, z[f"{m}/progress_frac"], z[f"{m}/fell"],
+                                      z[f"{m}/fail_kind"])
             if f"{m}/active_at_start" in z.files:
                 on_falls[m] = policy_on_falls(tracks, z[f"{m}/progress_frac"], z[f"{m}/fell"],
                                               z[f"{m}/fail_kind"], z[f"{m}/active_at_start"])
     md = failures_markdown(by_method)
     if on_falls:
         md += "\n\n" + policy_on_falls_markdown(on_falls)
+    md += "\n\n" + fall_positions_markdown(where)
     table1 = out.parent / "table1" / "table1.json"
     if table1.exists():  # what the policies alone allow on these tracks
         rows = [r for r in json.loads((out / "table2.json").read_text())["rows"]
@@ -197,6 +201,7 @@ def failures(out) -> int:
     (out / "failures_by_context.json").write_text(json.dumps(by_method, indent=1))
     if on_falls:
         (out / "policy_on_falls.json").write_text(json.dumps(on_falls, indent=1))
+    (out / "fall_positions.json").write_text(json.dumps(where, indent=1))
     return 0
 
 

@@ -289,7 +289,8 @@ def table3_md(doc: dict, e2e_steps: str) -> str:
         else:
             text = ", ".join(f"{k} {_hours(v)}" for k, v in parts.items())
         hours = "-" if r["hours"] is None else _hours(r["hours"])
-        lines.append(f"| {r['method']} | {hours} | {text} | {r['status']} | {r['paper_hours']:g} |")
+        paper_h = "-" if r["paper_hours"] is None else f"{r['paper_hours']:g}"  # rows of ours
+        lines.append(f"| {r['method']} | {hours} | {text} | {r['status']} | {paper_h} |")
     return "\n".join(lines)
 
 

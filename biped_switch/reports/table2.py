@@ -86,6 +86,41 @@ def failures_by_context(tracks, progress_frac, fell, fail_kind,
     return out
 
 
+def fall_positions(tracks, progress_frac, fell, fail_kind, detect_range_m: float | None = None
+                   ) -> dict:
+    """{kind: {"before", "on", "after": falls, "x_m": [each fall's x - the artifact's start]}}:
+    where on the artifact each fall charged to it (as `failures_by_context` charges them) ended:
+    on its approach, on it (start to end), or past its end."""
+    if detect_range_m is None:
+        detect_range_m = float(default_env_config().detect_range_m)
+    out = {k: {"before": 0, "on": 0, "after": 0, "x_m": []} for k in ARTIFACT_KINDS}
+    for i, t in enumerate(tracks):
+        x, reached = _reached(t, progress_frac[i], detect_range_m)
+        if not reached or fell[i] < 0.5:
+            continue
+        kind, a0, a1 = t.artifacts[reached[-1]]
+        if int(fail_kind[i]) != ARTIFACT_KINDS.index(kind):
+            continue
+        cell = out[kind]
+        cell["before" if x < a0 else "on" if x <= a1 else "after"] += 1
+        cell["x_m"].append(round(x - a0, 3))
+    return out
+
+
+def fall_positions_markdown(by_method: dict) -> str:
+    lines = ["Where the falls charged to an artifact ended: on its approach, on it, or past its "
+             "end (the body's x at the end, from the trial's progress), and the median x [m] "
+             "from the artifact's start.", "",
+             "| method | " + " | ".join(f"{k}: before / on / after (median m)" for k in ARTIFACT_KINDS)
+             + " |", "|---" * (len(ARTIFACT_KINDS) + 1) + "|"]
+    for m, d in by_method.items():
+        lines.append(f"| {m} | " + " | ".join(
+            f"{d[k]['before']} / {d[k]['on']} / {d[k]['after']} "
+            f"({np.median(d[k]['x_m']):.2f})" if d[k]["x_m"] else "0 / 0 / 0 (-)"
+            for k in ARTIFACT_KINDS) + " |")
+    return "\n".join(lines)
+
+
 def policy_on_falls(tracks, progress_frac, fell, fail_kind, active_at_start,
                     detect_range_m: float | None = None) -> dict:
     """{kind: {"falls", "wrong_policy", "before_start"}}: the falls charged to an artifact (as
