@@ -86,6 +86,17 @@ def failures_by_context(tracks, progress_frac, fell, fail_kind,
     return out
 
 
+def _charged_fall(track, progress_frac: float, fell: float, fail_kind: int,
+                  detect_range_m: float) -> tuple[int, float] | None:
+    """(index of the artifact a fall is charged to, x [m] of the trial's end), or None: a trial
+    that fell is charged to the last artifact it reached if the env blamed that artifact's kind."""
+    x, reached = _reached(track, progress_frac, detect_range_m)
+    if not reached or fell < 0.5:
+        return None
+    k = reached[-1]
+    return (k, x) if int(fail_kind) == ARTIFACT_KINDS.index(track.artifacts[k][0]) else None
+
+
 def fall_positions(tracks, progress_frac, fell, fail_kind, detect_range_m: float | None = None
                    ) -> dict:
     """{kind: {"before", "on", "after": falls, "x_m": [each fall's x - the artifact's start]}}:
@@ -95,12 +106,11 @@ def fall_positions(tracks, progress_frac, fell, fail_kind, detect_range_m: float
         detect_range_m = float(default_env_config().detect_range_m)
     out = {k: {"before": 0, "on": 0, "after": 0, "x_m": []} for k in ARTIFACT_KINDS}
     for i, t in enumerate(tracks):
-        x, reached = _reached(t, progress_frac[i], detect_range_m)
-        if not reached or fell[i] < 0.5:
+        charged = _charged_fall(t, progress_frac[i], fell[i], fail_kind[i], detect_range_m)
+        if charged is None:
             continue
-        kind, a0, a1 = t.artifacts[reached[-1]]
-        if int(fail_kind[i]) != ARTIFACT_KINDS.index(kind):
-            continue
+        kind, a0, a1 = t.artifacts[charged[0]]
+        x = charged[1]
         cell = out[kind]
         cell["before" if x < a0 else "on" if x <= a1 else "after"] += 1
         cell["x_m"].append(round(x - a0, 3))
@@ -131,13 +141,11 @@ def policy_on_falls(tracks, progress_frac, fell, fail_kind, active_at_start,
         detect_range_m = float(default_env_config().detect_range_m)
     out = {k: {"falls": 0, "wrong_policy": 0, "before_start": 0} for k in ARTIFACT_KINDS}
     for i, t in enumerate(tracks):
-        _, reached = _reached(t, progress_frac[i], detect_range_m)
-        if not reached or fell[i] < 0.5:
+        charged = _charged_fall(t, progress_frac[i], fell[i], fail_kind[i], detect_range_m)
+        if charged is None:
             continue
-        k = reached[-1]
+        k = charged[0]
         kind = t.artifacts[k][0]
-        if int(fail_kind[i]) != ARTIFACT_KINDS.index(kind):
-            continue
         cell = out[kind]
         cell["falls"] += 1
         on = int(active_at_start[i][k])
