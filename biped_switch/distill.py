@@ -105,13 +105,7 @@ def main(argv=None) -> int:
     from biped_switch.products import student  # JAX and the teacher's parts: after the checks
     if a.memory_probe:
         from biped_switch.products import student_memory as probe
-        mp = cfg.distill.memory_probe
-        res = probe.memory_probe(run_dir, int(cfg.distill.num_envs), tuple(mp.ks), float(mp.holdout),
-                                 steps=int(mp.steps), batch=int(mp.batch),
-                                 eval_every=int(mp.eval_every),
-                                 hidden=tuple(cfg.network.policy_hidden),
-                                 lr=float(cfg.distill.learning_rate))
-        print(f"wrote {probe.write(res, pathlib.Path(a.results))}")
+        print(f"wrote {probe.write(probe.memory_probe(run_dir, cfg), pathlib.Path(a.results))}")
         return 0
     if a.trace is not None:
         paths = student.draw_trial(cfg, run_dir, a.trace, a.track_seed, pathlib.Path(a.results))

@@ -61,6 +61,30 @@ def test_memory_probe_reads_each_envs_own_past():
     assert two["test_mse"] < 0.1 * one["test_mse"]
 
 
+def test_memory_probe_reads_its_run_and_config(tmp_path):
+    """memory_probe on a run's buffer.npz with the config's envs, histories and fit settings: the
+    same previous-input label, fitted from k = 2 and not from k = 1; a run without a buffer is
+    named in the error."""
+    from biped_switch.products.student_memory import memory_probe
+
+    n_envs, n = 4, 6000
+    x = np.random.default_rng(0).normal(size=(n, 3)).astype(np.float32)
+    y = np.zeros((n, 1), np.float32)
+    y[n_envs:, 0] = x[:-n_envs, 0]
+    np.savez(tmp_path / "buffer.npz", step=np.int64(123), x=x, y=y)
+    cfg = default_distill_config()
+    cfg.distill.num_envs, cfg.distill.learning_rate = n_envs, 1e-2
+    cfg.network.policy_hidden = (32,)
+    cfg.distill.memory_probe.update(ks=(1, 2), steps=600, batch=256, holdout=0.15, eval_every=300)
+    res = memory_probe(tmp_path, cfg, print_fn=lambda *a: None)
+    one, two = res["results"]
+    assert (res["buffer_step"], one["k"], two["k"]) == (123, 1, 2)
+    assert res["rows_held_out"] == round(0.15 * (n - n_envs)) and len(one["test_curve"]) == 1
+    assert one["test_mse"] > 0.8 and two["test_mse"] < 0.1 * one["test_mse"]
+    with pytest.raises(FileNotFoundError, match="no buffer.npz"):
+        memory_probe(tmp_path / "empty", cfg)
+
+
 def test_buffer_ring_and_its_file_order():
     buf = dist.Buffer(jnp.zeros((5, 2)), jnp.zeros((5, 1)), jnp.int32(0), jnp.int32(0))
     rows = np.arange(16, dtype=np.float32).reshape(8, 2)

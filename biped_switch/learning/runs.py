@@ -233,18 +233,18 @@ def commit_run(run_dir: pathlib.Path, out_dir: pathlib.Path | None = None,
     models/policies/<run>/ (that checkpoint only), for a later session or a fresh clone to
     resume from."""
     out = out_dir or COMMITTED_DIR / run_dir.name
-    if ckpt is not None and not (pathlib.Path(ckpt) / "progress.json").is_file():
-        raise FileNotFoundError(f"{ckpt} is not a checkpoint folder (no progress.json)")
-    chosen_step = ckpt is not None
-    ckpt = pathlib.Path(ckpt) if ckpt is not None else latest_checkpoint(run_dir)
+    chosen_ckpt = ckpt is not None
+    ckpt = pathlib.Path(ckpt) if chosen_ckpt else latest_checkpoint(run_dir)
     if ckpt is None:
         raise FileNotFoundError(f"no checkpoint under {run_dir}")
+    if not (ckpt / PROGRESS).is_file():
+        raise FileNotFoundError(f"{ckpt} is not a checkpoint folder (no {PROGRESS})")
     if out.exists():
         shutil.rmtree(out / "checkpoints", ignore_errors=True)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     shutil.copytree(ckpt, out / "checkpoints" / ckpt.name)
     chosen = out / CHOSEN_FILE  # says the step goal does not count: the checkpoint was chosen
-    if chosen_step:
+    if chosen_ckpt:
         chosen.write_text(json.dumps({"step": int(read_progress(ckpt)["step"]), "from": str(ckpt)}))
     else:
         chosen.unlink(missing_ok=True)

@@ -92,10 +92,15 @@ def fit_history(x: np.ndarray, y: np.ndarray, k: int, n_envs: int, train_rows: n
             "train_mse": mean_mse(train_rows[rng.choice(len(train_rows), len(test_rows), replace=False)])}
 
 
-def memory_probe(run_dir: pathlib.Path, n_envs: int, ks=(1, 2, 4), holdout: float = 0.1,
-                 print_fn=print, **fit_kw) -> dict:
-    """fit_history for each k on the run's buffer.npz: the newest `holdout` of rows held out, the
-    rest for fitting, the same rows for every k (those with k_max inputs of history)."""
+def memory_probe(run_dir: pathlib.Path, cfg, print_fn=print) -> dict:
+    """fit_history for each k of `cfg.distill.memory_probe` on the run's buffer.npz, with the
+    student's network widths and learning rate: the newest `holdout` of rows held out, the rest
+    for fitting, the same rows for every k (those with the longest history)."""
+    mp, n_envs = cfg.distill.memory_probe, int(cfg.distill.num_envs)
+    ks, holdout = tuple(int(k) for k in mp.ks), float(mp.holdout)
+    fit_kw = dict(hidden=tuple(cfg.network.policy_hidden), steps=int(mp.steps),
+                  batch=int(mp.batch), lr=float(cfg.distill.learning_rate),
+                  eval_every=int(mp.eval_every))
     path = pathlib.Path(run_dir) / BUFFER_FILE
     if not path.exists():
         raise FileNotFoundError(f"no {BUFFER_FILE} in {run_dir}: run `distill` for a chunk first")
@@ -119,7 +124,7 @@ def memory_probe(run_dir: pathlib.Path, n_envs: int, ks=(1, 2, 4), holdout: floa
                  + ", ".join(f"{s:,}: {v:.5f}" for s, v in r["test_curve"]))
         results.append(r)
     return {"buffer": str(path), "buffer_step": step, "n_envs": n_envs, "rows_fit": len(train_rows),
-            "rows_held_out": len(test_rows), "fit": {k: v for k, v in fit_kw.items()},
+            "rows_held_out": len(test_rows), "fit": fit_kw,
             "results": results}
 
 

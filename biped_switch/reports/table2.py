@@ -77,12 +77,12 @@ def failures_by_context(tracks, progress_frac, fell, fail_kind,
     for i, t in enumerate(tracks):
         arts = t.artifacts
         _, reached = _reached(t, progress_frac[i], detect_range_m)
+        charged = _charged_fall(t, progress_frac[i], fell[i], fail_kind[i], detect_range_m)
         for k in reached:
             kind, prev = arts[k][0], ("start" if k == 0 else arts[k - 1][0])
             cell = out[kind].setdefault(prev, [0, 0])
             cell[0] += 1
-            cell[1] += int(k == reached[-1] and fell[i] > 0.5
-                           and int(fail_kind[i]) == ARTIFACT_KINDS.index(kind))
+            cell[1] += int(charged is not None and charged[0] == k)
     return out
 
 
