@@ -36,9 +36,14 @@ def main(argv=None) -> int:
     p.add_argument("--iterations", type=cli.positive_int, default=5, help="--train: timed PPO iterations")
     p.add_argument("--preset", default="cpu", choices=("cpu", "gpu"), help="--train: batch sizes")
     p.add_argument("--points", type=cli.positive_int, default=100_000, help="--estimator: data points")
-    p.add_argument("--epochs", type=cli.positive_int, default=3, help="--estimator: epochs (the first compiles)")
+    p.add_argument("--epochs", type=cli.positive_int, default=None,
+                   help="--estimator: epochs, the first compiles (default 3); --train: PPO update "
+                        "epochs per batch (default: the preset's)")
+    p.add_argument("--minibatches", type=cli.positive_int, default=None,
+                   help="--train: PPO minibatches per epoch (default: the preset's)")
     a = p.parse_args(argv)
     if a.estimator:
+        a.epochs = 3 if a.epochs is None else a.epochs
         if a.points < 100 or a.epochs < 2:
             p.error("--estimator needs --points >= 100 and --epochs >= 2")
         res = bench_lib.run_estimator(a.points, a.epochs, a.seed)
@@ -55,7 +60,8 @@ def main(argv=None) -> int:
     if a.train:
         if a.iterations < 1:
             p.error(f"--iterations must be >= 1 (got {a.iterations})")
-        res = bench_lib.run_train(a.backend, a.kind or "walk", a.iterations, a.preset, a.encoding, a.seed)
+        res = bench_lib.run_train(a.backend, a.kind or "walk", a.iterations, a.preset, a.encoding, a.seed,
+                                  epochs=a.epochs, minibatches=a.minibatches)
         print(json.dumps(res) if a.json else json.dumps(res, indent=2))
         return 0
     if a.batch < 1 or a.steps < 1:

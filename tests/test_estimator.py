@@ -320,3 +320,19 @@ def test_estimator_benchmark_cli_prints_one_json_record(capsys):
             bench_cli.main(["--estimator", *argv])
         assert e.value.code == 2
     assert "--estimator needs" in capsys.readouterr().err
+
+
+def test_bench_train_update_levers_reach_run_train(monkeypatch, capsys):
+    """`bench --train --epochs E --minibatches M` times PPO under that update (the levers measured
+    against the physics limit in docs/speed.md); without them the preset's stands, and `--epochs`
+    still means the estimator's epochs under `--estimator`."""
+    from biped_switch.evaluation import bench
+    from biped_switch import bench as bench_cli
+
+    seen = []
+    monkeypatch.setattr(bench, "run_train", lambda *a, **k: seen.append(k) or {"what": "ppo_train"})
+    monkeypatch.setattr(bench, "run_estimator", lambda points, epochs, seed: seen.append(epochs) or {})
+    assert bench_cli.main(["--train", "--epochs", "2", "--minibatches", "8", "--json"]) == 0
+    assert bench_cli.main(["--train", "--json"]) == 0
+    assert bench_cli.main(["--estimator", "--json"]) == 0
+    assert seen == [{"epochs": 2, "minibatches": 8}, {"epochs": None, "minibatches": None}, 3]

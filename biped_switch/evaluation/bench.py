@@ -172,9 +172,13 @@ def _machine() -> dict:
             "python": platform.python_version()}
 
 
-def _trainer(backend, kind, preset, encoding, seed):
+def _trainer(backend, kind, preset, encoding, seed, epochs=None, minibatches=None):
     cfg = default_train_config(preset)
     cfg.policy, cfg.env.backend, cfg.network.encoding = kind, backend, encoding
+    if epochs is not None:
+        cfg.ppo.num_updates_per_batch = epochs
+    if minibatches is not None:
+        cfg.ppo.num_minibatches = minibatches
     env = train_env(cfg)
     trainer = ppo.make_train(cfg, env)
     curr = jnp.asarray([1.0, 1.0, 0.0], jnp.float32)  # difficulty 1, guides on, no pushes
@@ -184,11 +188,14 @@ def _trainer(backend, kind, preset, encoding, seed):
 
 
 def run_train(backend: str = "auto", kind: str = "walk", iterations: int = 5, preset: str = "cpu",
-              encoding: str = "pool", seed: int = 0, physics_steps: int = 50) -> dict:
+              encoding: str = "pool", seed: int = 0, physics_steps: int = 50,
+              epochs: int | None = None, minibatches: int | None = None) -> dict:
     """PPO env steps/s (collection + updates) on `backend`, after one compile, as the trainer's
     loop runs it (metrics fetched every iteration); on `mujoco`, beside the raw physics rate of
-    the same env and batch, measured right after in the same process."""
-    cfg, env, trainer, curr, ts, envs = _trainer(backend, kind, preset, encoding, seed)
+    the same env and batch, measured right after in the same process. `epochs` and `minibatches`
+    override the preset's update (levers that change the learning)."""
+    cfg, env, trainer, curr, ts, envs = _trainer(backend, kind, preset, encoding, seed, epochs,
+                                                 minibatches)
     t0 = time.perf_counter()
     ts, envs, m = jax.block_until_ready(trainer.iteration(ts, envs, jax.random.PRNGKey(seed + 2), curr))
     compile_s = time.perf_counter() - t0
