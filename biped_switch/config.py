@@ -8,7 +8,6 @@ sweeps or evaluates on another's tracks: track i of a stage has seed <stage>_TRA
 """
 
 from __future__ import annotations
-
 from ml_collections import config_dict
 
 # Track seeds. Training (PPO, and the DQN selector) uses tracks TRAIN_TRACK_SEED + run seed + i,
@@ -25,8 +24,9 @@ DETECTOR_KIND_STRIDE = 1000
 DETECTOR_VAL_OFFSET = 500
 DETECTOR_MIXED_OFFSET = 9_000
 TUNE_TRACK_SEED = 50_000  # mixed tracks for tuning switching thresholds (`evaluate multi --track-seed`)
-# (the setup policies' tracks: 60_000 and 70_000, default_setup_config)
-STUDENT_TRACK_SEED = 80_000  # the distilled student's training tracks: mixed, + run seed + i
+STUDENT_TRACK_SEED = 80_000  # the distilled student's training tracks: mixed (setup: 60_000, 70_000)
+# (reporting, tuning) mixed tracks of a line-up's Table II (kinds.LINEUPS): Table II-4 for stones
+LINEUP_TRACK_SEEDS = {"paper": (MULTI_TRACK_SEED, TUNE_TRACK_SEED), "stones": (100_000, 110_000)}
 
 
 def default_terrain_config(n_artifacts: int = 7) -> config_dict.ConfigDict:

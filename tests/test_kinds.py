@@ -183,3 +183,45 @@ def test_vectorised_lookups_by_hand(xp_name):
     assert np.asarray(kinds.policy_of_code(code, xp)).tolist() == [0, 1, 2, 3, 0, 0]
     assert np.asarray(kinds.class_of_code(code, xp)).tolist() == [0, 1, 2, 3, 0, 0]
     assert np.asarray(kinds.code_of_class(xp.asarray([0, 1, 2, 3]), xp)).tolist() == [-1, 0, 1, 2]
+
+
+def test_lineups_by_hand():
+    """The paper's line-up is the paper=True records; the stones line-up adds stones as slot 4 and
+    target 3 (its artifact code), so a code maps to the same policy in both where both know it."""
+    paper, stones = kinds.LINEUP["paper"], kinds.LINEUP["stones"]
+    assert (paper.policies, paper.targets) == (kinds.POLICY_NAMES, kinds.ARTIFACT_KINDS)
+    assert paper.policy_of_code == kinds.POLICY_OF_CODE == (1, 2, 3)
+    assert stones.policy_of_code == (1, 2, 3, 4) and stones.walk_policy == paper.walk_policy == 0
+    assert (stones.n_policies, stones.n_targets, stones.tracks) == (5, 4, "mixed4")
+    code = np.asarray([-1, 0, 1, 2, 3])
+    assert kinds.policy_of_code(code, np, stones).tolist() == [0, 1, 2, 3, 4]
+    assert kinds.policy_of_code(code, np, paper).tolist() == [0, 1, 2, 3, 0]
+
+
+def test_inconsistent_lineups_are_refused():
+    t, b, s = kinds.TERRAIN, kinds.BEHAVIOURS, kinds.LINEUPS
+    bad = {
+        "slots 0..n-1": dataclasses.replace(s[1], policies=("walk", "gaps", "jumps", "stairs", "stones")),
+        "codes 0..m-1": dataclasses.replace(s[1], targets=("jumps", "gaps", "stones", "stairs")),
+        "one per target": dataclasses.replace(s[1], policies=("walk", "jumps", "gaps", "stairs")),
+        "must lay its targets": dataclasses.replace(s[1], tracks="mixed"),
+    }
+    for why, suite in bad.items():
+        with pytest.raises(ValueError, match=why):
+            kinds.check(t, b, (s[0], suite))
+    with pytest.raises(ValueError, match="start with 'paper'"):
+        kinds.check(t, b, s[::-1])
+    with pytest.raises(ValueError, match="paper=True records"):
+        kinds.check(t, b, (dataclasses.replace(s[1], name="paper"),))
+
+
+def test_every_lineup_has_its_own_reporting_and_tuning_tracks():
+    """Each line-up's Table II has reporting and tuning seeds (config.LINEUP_TRACK_SEEDS), the
+    paper's the Table II / tuning ones, and no two ranges of 2,500 tracks overlap."""
+    from biped_switch import config
+
+    seeds = config.LINEUP_TRACK_SEEDS
+    assert set(seeds) == set(kinds.LINEUP)
+    assert seeds["paper"] == (config.MULTI_TRACK_SEED, config.TUNE_TRACK_SEED)
+    starts = sorted(s for pair in seeds.values() for s in pair)
+    assert all(b - a >= 2500 for a, b in zip(starts, starts[1:])), starts
