@@ -26,7 +26,7 @@ tracks (7 artifacts; trial i uses track i and rng seed + batch start), each tria
 walk policy, on the physics `--backend` with the env overrides its policy suite was trained with.
 Reports % distance, % success and % of trials failing on gaps / jumps / stairs, with 95% CIs;
 saves Markdown, CSV and JSON under experiments/results/table2/, plus the paper's Fig. 5 (one
-trial of each row with a model or setup policies) as fig5_trial<i>[_<row>].png.
+trial of each row with a model or setup policies) as fig5_trial<i>[_<row>].png; `--lineup stones`: Table II-4.
 
     python -m biped_switch.evaluate retrain-cost [--runs runs] [--results R] [--when-dir W]
 
@@ -41,7 +41,8 @@ from __future__ import annotations
 import argparse
 
 from biped_switch import cli
-from biped_switch.config import EVAL_TRACK_SEED, MULTI_TRACK_SEED, TUNE_TRACK_SEED
+from biped_switch.config import EVAL_TRACK_SEED, LINEUP_TRACK_SEEDS
+from biped_switch.kinds import LINEUP, PAPER_LINEUP
 from biped_switch.products import tables
 from biped_switch.evaluation.single import HORIZON_MARGIN, HORIZON_SPEED_MPS
 from biped_switch.learning.runs import BASELINE_DIR
@@ -81,13 +82,14 @@ def parser() -> argparse.ArgumentParser:
                    "run's rows join its rows of the other policies and inits made with the same "
                    "trials, batch, seed, horizon and track seed)")
     m = sub.add_parser("multi", help="Table II: switching methods on multi-artifact tracks")
-    m.add_argument("--methods", nargs="+", default=list(MULTI_METHODS), choices=MULTI_METHODS)
+    m.add_argument("--methods", nargs="+", default=None, choices=MULTI_METHODS, help="default: all the line-up has")
+    m.add_argument("--lineup", default=PAPER_LINEUP.name, choices=tuple(LINEUP), help="policies, targets, tracks")
     _common(m, 2500, 250, 60.0, "episode time limit [s]")
     m.add_argument("--n-artifacts", type=cli.positive_int, default=7, help="artifacts per track (paper: 7)")
-    m.add_argument("--track-seed", type=cli.nonneg_int, default=MULTI_TRACK_SEED,
-                   help=f"trial i runs on the mixed track of seed TRACK_SEED + i (default "
-                        f"{MULTI_TRACK_SEED:,}: Table II's, for reporting only; tune on others, "
-                        f"e.g. {TUNE_TRACK_SEED:,})")
+    m.add_argument("--track-seed", type=cli.nonneg_int, default=None,
+                   help=f"trial i runs on the line-up's track of seed TRACK_SEED + i (default: its "
+                        f"reporting seed, for reporting only; tune on others: (report, tune) "
+                        f"{LINEUP_TRACK_SEEDS})")
     m.add_argument("--detector", default="oracle", choices=("oracle", "learned"),
                    help="what names the next artifact: the paper's oracle, or the learned "
                         "detector on the heightmap (python -m biped_switch.detector)")

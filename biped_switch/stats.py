@@ -34,10 +34,11 @@ def mean_ci(x: np.ndarray, z: float = 1.96) -> tuple[float, float, float]:
     return m, m - half, m + half
 
 
-def episode_table(result: dict) -> dict:
+def episode_table(result: dict, kinds=ARTIFACT_KINDS) -> dict:
     """% distance and % success (with CIs; the distance's normal interval is clipped to
     0-100) from per-episode rollout results, and the % of episodes failing on each artifact
-    kind (`fail_kind`: the kind's code, -1 for none)."""
+    kind of `kinds` (index = artifact code: the paper's, or a line-up's `targets`; `fail_kind`:
+    the kind's code, -1 for none)."""
     dist = 100.0 * np.asarray(result["progress_frac"])
     succ = np.asarray(result["success"]) > 0.5
     n = len(succ)
@@ -48,9 +49,9 @@ def episode_table(result: dict) -> dict:
     return {"n": n, "distance_pct": d, "distance_ci": [d_lo, d_hi],
             "success_pct": 100.0 * succ.mean(), "success_ci": [100 * s_lo, 100 * s_hi],
             "fell_pct": 100.0 * float((np.asarray(result["fell"]) > 0.5).mean()),
-            "fail_on": {k: 100.0 * float((fail == i).mean()) for i, k in enumerate(ARTIFACT_KINDS)},
+            "fail_on": {k: 100.0 * float((fail == i).mean()) for i, k in enumerate(kinds)},
             "fail_ci": {k: [100 * v for v in wilson_ci(float((fail == i).sum()), n)]
-                        for i, k in enumerate(ARTIFACT_KINDS)}}
+                        for i, k in enumerate(kinds)}}
 
 
 def pct_ci(v: float, ci) -> str:

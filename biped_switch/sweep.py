@@ -9,18 +9,22 @@ import argparse
 import pathlib
 
 from biped_switch import cli
+from biped_switch import kinds
 from biped_switch.config import default_sweep_config
-from biped_switch.learning import policies as pol
 from biped_switch.products import sweep as sweep_products
 from biped_switch.simulation import terrain
 from biped_switch.switching.estimator import sweep_name
+from biped_switch.switching.sweep_tracks import check_sweep_kind
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.sweep", description=__doc__.split("\n")[0])
     cli.add_init(p)
-    p.add_argument("--targets", nargs="+", default=list(terrain.ARTIFACT_KINDS),
-                   choices=terrain.ARTIFACT_KINDS)
+    p.add_argument("--lineup", default=kinds.PAPER_LINEUP.name, choices=list(kinds.LINEUP),
+                   help="whose policies switch into which targets (kinds.LINEUPS; default the "
+                        "paper's); another than paper: --context only, named <init>_context_<it>")
+    p.add_argument("--targets", nargs="+", default=None, choices=kinds.ALL_ARTIFACT_KINDS,
+                   help="the targets to sweep (default: every target of the line-up)")
     p.add_argument("--points", type=cli.positive_int, default=None, help="data points per target (default 100,000)")
     p.add_argument("--batch", type=cli.positive_int, default=None, help="episodes per jitted batch")
     p.add_argument("--tracks", type=cli.positive_int, default=512, help="single-artifact tracks in the bank")
@@ -28,7 +32,7 @@ def main(argv=None) -> int:
     cli.add_runs(p, "where the trained policies are (then models/policies/)")
     cli.add_out(p, "runs/sweeps", "the sweep data, one part per batch (large; not committed)")
     p.add_argument("--results", default="experiments/results/lookup")
-    p.add_argument("--stand-in", default=None, choices=pol.POLICY_NAMES,
+    p.add_argument("--stand-in", default=None, choices=kinds.ALL_POLICY_NAMES,
                    help="use this policy for any that is not trained yet (pipeline checks only)")
     p.add_argument("--guide-scale", type=cli.nonneg_float, default=0.0,
                    help="scripted guide forces on (pipeline checks with untrained policies only)")
@@ -50,7 +54,16 @@ def main(argv=None) -> int:
                         "the label agrees (RESULTS/label_noise.json)")
     p.add_argument("--replay-batch", type=cli.positive_int, default=128)
     a = p.parse_args(argv)
-    name = sweep_name(a.init, a.context, a.lead_in)
+    lineup = kinds.LINEUP[a.lineup]  # resolved once: everything below reads the record
+    try:
+        check_sweep_kind(lineup, a.context, a.lead_in)
+    except ValueError as e:
+        p.error(str(e))
+    a.targets = list(lineup.targets) if a.targets is None else a.targets
+    if bad := [t for t in a.targets if t not in lineup.targets]:
+        p.error(f"--targets {' '.join(bad)}: not a target of line-up {lineup.name} "
+                f"({', '.join(lineup.targets)})")
+    name = sweep_name(a.init, a.context, a.lead_in, lineup=lineup)
     cfg = default_sweep_config()
     if a.points is not None:
         cfg.n_points = a.points
@@ -65,8 +78,8 @@ def main(argv=None) -> int:
         cfg.difficulty = a.difficulty
     out = pathlib.Path(a.out)
     if a.replay:
-        return sweep_products.replay(a, out / name, pathlib.Path(a.results))
-    return sweep_products.sweeps_and_lookup(a, cfg, name, out)
+        return sweep_products.replay(a, out / name, pathlib.Path(a.results), lineup)
+    return sweep_products.sweeps_and_lookup(a, cfg, name, out, lineup)
 
 
 if __name__ == "__main__":

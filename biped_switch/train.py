@@ -5,15 +5,12 @@ The command line of `biped_switch.learning.trainer`: `python -m biped_switch.tra
 
 from __future__ import annotations
 
-import argparse
-import functools
-import pathlib
+import argparse, functools, pathlib
 import jax
 from biped_switch import cli
 from biped_switch.simulation import env as env_lib
-from biped_switch.learning import runs as runs_lib
+from biped_switch.learning import runs as runs_lib, trainer
 from biped_switch.config import SETUP_TARGETS, default_train_config
-from biped_switch.learning import trainer
 from biped_switch.reports import curves
 from biped_switch.switching import setup as setup_lib
 
@@ -45,6 +42,9 @@ def main(argv=None) -> int:
                         "(default: a resumed run's own, else 0: no cap; mixed trains with 0.5 "
                         "from 205.7M env steps: its recipe.json)")
     p.add_argument("--push-plateau-steps", type=int, metavar="N", help="curriculum.py (0: no plateau end)")
+    p.add_argument("--update-epochs", type=int, metavar="E", help="PPO epochs over each batch (default: "
+                   "a resumed run's own, else the preset's; docs/speed.md)")
+    p.add_argument("--minibatches", type=int, metavar="M", help="PPO minibatches per epoch (as --update-epochs)")
     p.add_argument("--warm-start", default=None, metavar="CKPT_OR_RUN",
                    help="start a new run from the parameters of a checkpoint folder, a run "
                         "folder's latest checkpoint, or a run name (e.g. walk_stand: runs/, then "
@@ -88,19 +88,16 @@ def main(argv=None) -> int:
                                          a.seed, a.jobs, mains)
         except recipe_lib.RecipeError as e:
             p.error(str(e))
+    run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
     if a.plot:
-        curves.ppo_curves(pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}"),
-                             pathlib.Path(a.plot))
-        return 0
+        return curves.ppo_curves(run_dir, pathlib.Path(a.plot)) or 0
     if a.probe_guides:
-        run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
         try:
             print(trainer.probe_guides_report(run_dir, a.probe_guides, a.seed or 0))
         except (ValueError, FileNotFoundError) as e:
             p.error(f"--probe-guides {a.probe_guides}: {e}")
         return 0
     if a.commit:
-        run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
         print(f"committed copy: {runs_lib.commit_run(run_dir, plot_fn=curves.ppo_curves)}")
         return 0
     if a.distributed:
@@ -119,13 +116,14 @@ def main(argv=None) -> int:
     if a.warm_start:
         cfg.warm_start = a.warm_start
     cfg.stop_when_done = not a.keep_training
-    run_dir = pathlib.Path(a.out) / (a.name or f"{a.policy}_{a.init}")
     # a flag's value, else the resumed run's own (config.json), else the default
     for flag, section, key, ok, must in (
             ("--learning-rate", "ppo", "learning_rate", lambda v: v > 0, "> 0"),
             ("--guide-notch", "curriculum", "guide_notch", lambda v: 0 < v < 1, "in (0, 1)"),
             ("--max-action-std", "ppo", "max_action_std", lambda v: v >= 0, ">= 0 (0: no cap)"),
             ("--push-plateau-steps", "curriculum", "push_plateau_steps", lambda v: v >= 0, ">= 0"),
+            ("--update-epochs", "ppo", "num_updates_per_batch", lambda v: v >= 1, ">= 1"),
+            ("--minibatches", "ppo", "num_minibatches", lambda v: v >= 1, ">= 1"),
             ("--chunk-steps", None, "chunk_timesteps", lambda v: v > 0, "> 0")):
         given, sec = getattr(a, flag[2:].replace("-", "_")), cfg[section] if section else cfg
         if given is not None:

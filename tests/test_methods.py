@@ -10,7 +10,7 @@ import pytest
 
 from biped_switch import methods, names
 from biped_switch.config import default_switching_config, default_when_config
-from biped_switch.evaluation import multi
+from biped_switch.evaluation import multi, parts
 from biped_switch.learning import runs as runs_lib
 from biped_switch.simulation import env as env_lib
 from biped_switch.simulation.model import MODELS_DIR
@@ -76,7 +76,7 @@ def built():
     """What `evaluate multi` builds for every switching row of Table II with the committed parts
     (one set-up per rollout, as evaluate_multi makes them): {name: (setup, rules, est_params)}."""
     cfg = _cfg()
-    ok, skipped = multi.available_methods(list(WANT), cfg.runs, cfg.est_dir, cfg.lookup_dir,
+    ok, skipped = parts.available_methods(list(WANT), cfg.runs, cfg.est_dir, cfg.lookup_dir,
                                           when_dir=cfg.when_dir)
     assert not skipped, skipped  # the committed models have every row's parts
     recs = [methods.method(m) for m in ok]

@@ -15,6 +15,7 @@ import pytest
 from biped_switch.switching import estimator
 from biped_switch.learning import policies as pol
 from biped_switch.switching import labels, sweep
+from biped_switch.kinds import ARTIFACT_KINDS
 from biped_switch.switching import lookup
 from biped_switch.simulation.observation import ObsLayout
 from biped_switch import sweep as sweep_cli
@@ -207,7 +208,7 @@ def test_context_plan_by_hand():
 def test_context_env_lays_out_the_plan():
     kinds, _, _ = sweep.context_plan("stairs", 5)
     env = sweep.make_context_env(kinds, "stand", backend="mujoco")
-    codes = [[sweep.terrain.ARTIFACT_KINDS[c] for c in row] for row in env.bank.artifact_codes]
+    codes = [[ARTIFACT_KINDS[c] for c in row] for row in env.bank.artifact_codes]
     assert codes == kinds
     assert env.bank.artifact_codes.shape == (5, 2)
 
@@ -334,11 +335,11 @@ def fake_sweep(monkeypatch):
         env_kw.append(kw)
         return types.SimpleNamespace(obs_layout=ObsLayout((2, 2)))  # the windows' 51 + 4 columns
 
-    def suite_env_overrides(init, runs, stand_in=None):
+    def suite_env_overrides(init, runs, stand_in=None, names=pol.POLICY_NAMES):
         return dict(overrides)
 
-    def load_suite(init, env, runs, stand_in=None):
-        return pol.PolicySuite(None, None, tuple(f"ckpt_{n}" for n in pol.POLICY_NAMES), overrides)
+    def load_suite(init, env, runs, stand_in=None, names=pol.POLICY_NAMES):
+        return pol.PolicySuite(None, None, tuple(f"ckpt_{n}" for n in names), overrides)
 
     def make_runner(env, apply, target, cfg, guide_scale=0.0, target_index=None, lead_m=None):
         def run(params, rng, ids, src):

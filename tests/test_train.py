@@ -557,3 +557,25 @@ def test_a_committed_checkpoint_chosen_short_of_the_ceiling_is_not_in_training(t
     assert runs_lib.run_notes(out) == ["at step 200 of 400"]
     with pytest.raises(FileNotFoundError, match="no progress.json"):
         runs_lib.commit_run(run, out_dir=out, ckpt=tmp_path / "nowhere")
+
+
+def test_update_flags_set_the_ppo_update_and_a_resume_keeps_its_own(tmp_path, monkeypatch, capsys):
+    """`--update-epochs` / `--minibatches` reach the trainer's config; without them a resumed run
+    keeps the update in its config.json (a run never changes learner when resumed), and a fresh
+    run takes the preset's. A bad value is named."""
+    seen = []
+    monkeypatch.setattr(train_lib, "train", lambda cfg, run_dir, *a, **k: seen.append(
+        (cfg.ppo.num_updates_per_batch, cfg.ppo.num_minibatches)))
+    argv = ["--policy", "walk", "--preset", "cpu", "--out", str(tmp_path)]
+    preset = default_train_config("cpu").ppo
+    train_cli.main(argv)
+    saved = default_train_config("cpu")
+    saved.ppo.update(num_updates_per_batch=2, num_minibatches=8)
+    (tmp_path / "walk_stand").mkdir()
+    (tmp_path / "walk_stand" / "config.json").write_text(saved.to_json_best_effort())
+    train_cli.main(argv)
+    train_cli.main(argv + ["--update-epochs", "1", "--minibatches", "16"])
+    assert seen == [(preset.num_updates_per_batch, preset.num_minibatches), (2, 8), (1, 16)]
+    with pytest.raises(SystemExit):
+        train_cli.main(argv + ["--update-epochs", "0"])
+    assert "--update-epochs must be >= 1, got 0" in capsys.readouterr().err

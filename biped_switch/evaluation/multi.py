@@ -10,6 +10,11 @@ baselines (the DQN selector, the end-to-end policy) run the same tracks, seeds a
 (`BaselineSetup`). Every env runs on the chosen physics backend, with the
 env overrides its policy suite was trained with. A row reports % distance, % success and % of
 trials failing on gaps / jumps / stairs, with 95% CIs (stats.py).
+
+Another line-up (`MultiConfig.lineup`, `kinds.Lineup`; Table II-4: stones) runs the same way on
+its own track kind (`mixed4`) with its suite (`lineup.policies`) and rules sized by it; the rows
+it cannot have are refused up front (evaluation/parts.py), and each row reports a failure rate
+per target of the line-up.
 """
 
 from __future__ import annotations
@@ -33,13 +38,16 @@ from biped_switch.switching import detector as det_lib
 from biped_switch.switching import lookup
 from biped_switch.switching import rules as sw
 from biped_switch.simulation import terrain
-from biped_switch.config import (MULTI_TRACK_SEED, SETUP_SUITE, SETUP_WALK_ON,
+from biped_switch.config import (MULTI_TRACK_SEED, SETUP_WALK_ON,
                                  default_switching_config, default_terrain_config,
                                  default_when_config)
 from biped_switch.paths import WHEN_DIR
 from biped_switch.simulation.rollout import over_devices
 from biped_switch.stats import episode_table, join_rows
 
+from biped_switch import kinds
+from biped_switch.evaluation import parts as parts_lib
+from biped_switch.evaluation.parts import find_setup_policies
 from biped_switch.methods import Method, method as method_record
 from biped_switch.names import BASELINES, MULTI_METHODS
 from biped_switch.switching import when as when_lib
@@ -49,7 +57,8 @@ from biped_switch.switching import when as when_lib
 class MultiConfig:
     """What every row of one `evaluate multi` shares: the trials, where the trained parts are, the
     tracks and the backend. Trial i runs on track `track_seed` + i; `detector_dir`: a learned
-    terrain detector in place of the oracle; `when_cfg`: the learned rule's (None: config's)."""
+    terrain detector in place of the oracle; `when_cfg`: the learned rule's (None: config's);
+    `lineup`: whose policies switch into which targets, on which track kind (kinds.LINEUPS)."""
 
     trials: int
     batch: int
@@ -66,83 +75,7 @@ class MultiConfig:
     detector_dir: str | None = None
     when_dir: str = WHEN_DIR
     when_cfg: object = None
-
-
-def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
-    """{setup policy name: (target kind, source policy names, hand-over distance [m])} of the
-    trained setup policies `names` of an init mode (`train --policy setup_<target>`; default: the
-    controller's, config.SETUP_SUITE), each as its run's config says it was trained: the sources
-    it takes over from and the distance it hands over at."""
-    found = {}
-    for name in names:
-        ckpt = runs_lib.find_policy(name, init, runs)
-        if ckpt is None:
-            continue
-        s = runs_lib.read_config(ckpt.parent.parent).get("setup")
-        if not s:
-            raise ValueError(f"{ckpt}: a setup policy's run config.json without a setup section")
-        found[name] = (s["target"], tuple(s["sources"]), float(s["handover_m"]))
-    return found
-
-
-def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
-                      stand_in: str | None = None, when_dir=WHEN_DIR) -> tuple[list, list]:
-    """(methods whose trained parts exist, ["method: what is missing", ...])."""
-    ok, skipped = [], []
-    for m in methods:
-        why = _missing(method_record(m), pathlib.Path(runs), est_dir, lookup_dir, dqn_dir,
-                       stand_in, when_dir)
-        if why:
-            skipped.append(f"{m}: {why}")
-        else:
-            ok.append(m)
-    return ok, skipped
-
-
-def _missing(rec: Method, runs: pathlib.Path, est_dir, lookup_dir, dqn_dir, stand_in,
-             when_dir) -> str | None:
-    """The first part of `rec`'s row that is not trained, with the command that makes it (None:
-    all there), in the order a user would make them."""
-    init = rec.suite
-    if rec.policy is not None:
-        if runs_lib.find_policy(rec.policy, "stand", runs) is None:
-            return (f"no {rec.policy}_stand policy (python -m biped_switch."
-                    f"{'distill' if rec.policy == 'student' else 'train --policy ' + rec.policy})")
-    else:  # the suite: all four policies, or with a stand-in, walk or the stand-in
-        missing = [n for n in pol.POLICY_NAMES if runs_lib.find_policy(n, init, runs) is None]
-        if stand_in is not None and (runs_lib.find_policy("walk", init, runs) is not None
-                                     or runs_lib.find_policy(stand_in, init, runs) is not None):
-            missing = []
-        if missing:
-            return (f"no {init}-init {', '.join(missing)} policy under {runs}/ or models/policies/ "
-                    f"(python -m biped_switch.train --policy P --init {init})")
-    if rec.setup and not find_setup_policies(init, runs):
-        return (f"no {init}-init setup policy under {runs}/ or models/policies/ "
-                f"(python -m biped_switch.train --policy setup_gaps --init {init})")
-    if rec.when and not (pathlib.Path(when_dir) / init / "meta.json").exists():
-        return f"no learned when rule in {when_dir}/{init} (python -m biped_switch.when --init {init})"
-    if rec.estimators == "context" and est_lib.context_estimator_paths(init, est_dir) is None:
-        return (f"no {init}_context estimator in {est_dir} (python -m biped_switch.estimator "
-                f"--init {init} --context), or a target has no estimator at all")
-    if rec.estimators == "sweep" and not all(
-            (pathlib.Path(est_dir) / f"{init}_{k}").exists() for k in terrain.ARTIFACT_KINDS):
-        return f"no {init}-init estimators in {est_dir} (make train-estimators)"
-    if rec.lookup == "context":
-        missing = lookup.context_lookup_missing("stand", lookup_dir)
-        if missing is None or missing:
-            return (f"no context lookup table covering every target in {lookup_dir} (python -m "
-                    f"biped_switch.sweep --init stand --context)")
-    if rec.lookup == "sweep":
-        missing = lookup.lookup_missing("stand", lookup_dir)
-        if missing is None:
-            return f"no lookup table in {lookup_dir} (python -m biped_switch.sweep)"
-        if missing:  # swept one target at a time, across sessions
-            return (f"the lookup table in {lookup_dir} has no {', '.join(missing)} (python -m "
-                    f"biped_switch.sweep --targets {' '.join(missing)})")
-    if rec.name == "dqn" and runs_lib.find_dqn(runs, "stand", dqn_dir) is None:
-        return (f"no DQN checkpoint in {dqn_dir or f'{runs}/dqn_stand'} or "
-                f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
-    return None
+    lineup: kinds.Lineup = kinds.PAPER_LINEUP
 
 
 def _run_batches(run, trials: int, batch: int, seed: int, print_fn=None, label: str = "") -> dict:
@@ -163,22 +96,24 @@ def _run_batches(run, trials: int, batch: int, seed: int, print_fn=None, label: 
 
 
 def multi_env(init: str, trials: int, n_artifacts: int = 7, track_seed: int = MULTI_TRACK_SEED,
-              **overrides):
-    """Table II's env (`env.make_env`): `mixed` tracks track_seed + i (trial i; Table II's are
-    MULTI_TRACK_SEED + i, tuning uses others), `n_artifacts` per track; `overrides` (env config:
-    the physics `backend`, the suite's action mode and phase clock, ...) go to `env.make_env`."""
-    return env_lib.make_env("mixed", init, n_artifacts=n_artifacts, n_tracks=trials,
+              kind: str = "mixed", **overrides):
+    """Table II's env (`env.make_env`): `kind` tracks (a line-up's `tracks`; the paper's: mixed)
+    track_seed + i (trial i; Table II's are MULTI_TRACK_SEED + i, tuning uses others),
+    `n_artifacts` per track; `overrides` (env config: the physics `backend`, the suite's action
+    mode and phase clock, ...) go to `env.make_env`."""
+    return env_lib.make_env(kind, init, n_artifacts=n_artifacts, n_tracks=trials,
                             seed=int(track_seed), **overrides)
 
 
-def mixed_track(seed: int, n_artifacts: int = 7):
+def mixed_track(seed: int, n_artifacts: int = 7, kind: str = "mixed"):
     """The terrain.Track of seed `seed` as multi_env lays it out (trial i: MULTI_TRACK_SEED + i)."""
-    return terrain.generate_track(int(seed), "mixed", 1.0, default_terrain_config(n_artifacts))
+    return terrain.generate_track(int(seed), kind, 1.0, default_terrain_config(n_artifacts))
 
 
 def trial_track(setup, trial: int):
     """The terrain.Track of a trial of `setup` (for plots)."""
-    return mixed_track(setup.env.cfg.seed + trial, setup.env.terrain_cfg.n_artifacts)
+    return mixed_track(setup.env.cfg.seed + trial, setup.env.terrain_cfg.n_artifacts,
+                       setup.env.cfg.kind)
 
 
 def load_detector(detector_dir, env):
@@ -202,19 +137,23 @@ class MultiSetup:
                              f"{[r.name for r in recs]}")
         first, runs = recs[0], cfg.runs
         self.init = init = first.suite
-        # the setup methods' suite: the four policies, then every trained setup policy
+        self.lineup = lineup = cfg.lineup
+        parts_lib.check_rows(recs, lineup)
+        parts_lib.check_detector(cfg.detector_dir, lineup)
+        # the setup methods' suite: the line-up's policies, then every trained setup policy
         setups = find_setup_policies(init, runs) if first.setup else {}
         if first.setup and not setups:
             raise FileNotFoundError(f"no {init}-init setup policy under {runs}/ or models/policies/")
-        names = pol.POLICY_NAMES + tuple(setups)
-        self.env = multi_env(init, cfg.trials, cfg.n_artifacts, cfg.track_seed, backend=cfg.backend,
+        names = lineup.policies + tuple(setups)
+        self.env = multi_env(init, cfg.trials, cfg.n_artifacts, cfg.track_seed, lineup.tracks,
+                             backend=cfg.backend,
                              **pol.suite_env_overrides(init, runs, stand_in=cfg.stand_in, names=names))
         det_apply, self.det_params, self.detector = load_detector(cfg.detector_dir, self.env)
         self.suite = pol.load_suite(init, self.env, runs, stand_in=cfg.stand_in, names=names)
         self.policy_names = names
         self.walk_on = {k: (tuple(v["sources"]), float(v["handover_m"]))
                         for k, v in SETUP_WALK_ON.items()} if first.setup else {}
-        self.setup = sw.setup_slots(names, setups) if setups else None
+        self.setup = sw.setup_slots(names, setups, lineup=lineup) if setups else None
         self._load_parts(recs, cfg)
         for name, (target, sources, handover_m) in setups.items():
             self.parts.setdefault("setup", []).append(
@@ -223,6 +162,11 @@ class MultiSetup:
         for target, (sources, handover_m) in self.walk_on.items():
             self.parts.setdefault("setup", []).append(
                 f"walk on: {sources} -> {target}, the source acts to {handover_m:g} m")
+        unserved = [n for n in parts_lib.new_names(lineup)  # a kind no setup policy serves
+                    if not any(n == t or n in src for t, src, _ in setups.values())]
+        if setups and unserved:
+            self.parts["setup"].append(f"line-up {lineup.name}: no setup policy into or out of "
+                                       f"{', '.join(unserved)}; those pairs switch by the rule")
         self.horizon = int(round(cfg.horizon_s / self.env.dt))
 
         env, apply, est_apply, horizon = self.env, self.suite.apply, self.est_apply, self.horizon
@@ -249,11 +193,11 @@ class MultiSetup:
             self.est_params, self.est_meta = est_lib.load_estimator_set(init, est_dir)
             self.est_apply = est_lib.predict
             self.parts["estimator"] = [f"{k}: {pathlib.Path(est_dir) / f'{init}_{k}'}"
-                                       for k in terrain.ARTIFACT_KINDS]
+                                       for k in self.lineup.targets]
         if any(r.lookup == "sweep" for r in recs):
             self.lookup_m = lookup.load_lookup(init, lookup_dir)
             self.parts["lookup"] = [f"{k}: {pathlib.Path(lookup_dir) / f'lookup_{init}.json'}"
-                                    for k in terrain.ARTIFACT_KINDS]
+                                    for k in self.lineup.targets]
         est_ctx = [r for r in recs if r.estimators == "context"]
         if est_ctx:
             paths = est_lib.context_estimator_paths(init, est_dir)
@@ -264,7 +208,7 @@ class MultiSetup:
             if self.est_params is None:  # a compiled rollout needs some set for the other methods
                 self.est_params = self.context_est_params
             for r in est_ctx:
-                self.parts[r.name] = ([f"{k}: {p}" for k, p in zip(terrain.ARTIFACT_KINDS, paths)]
+                self.parts[r.name] = ([f"{k}: {p}" for k, p in zip(self.lineup.targets, paths)]
                                       + [f"estimate >= threshold on {r.persist_steps} control "
                                          f"step(s) in a row"])
         if recs[0].when:  # the learned rule: its own model, read with the context
@@ -277,7 +221,8 @@ class MultiSetup:
                     f"model: {path}", f"switch once P(now) >= best later P ({wcfg.later_from}) + "
                     f"{float(wcfg.margin):g} on {int(wcfg.persist_steps)} control step(s) in a row"]
         if any(r.lookup == "context" for r in recs):
-            self.context_lookup_m, used = lookup.load_context_lookup(init, lookup_dir)
+            self.context_lookup_m, used = lookup.load_context_lookup(init, lookup_dir,
+                                                                     lineup=self.lineup)
             for r in recs:
                 if r.lookup == "context":
                     self.parts[r.setup_of or r.name] = used
@@ -306,9 +251,9 @@ class MultiSetup:
         setup = None
         if rec.setup:
             setup = self.setup
-            lookup_m = sw.walk_on_lookup(lookup_m, self.walk_on, setup)
+            lookup_m = sw.walk_on_lookup(lookup_m, self.walk_on, setup, lineup=self.lineup)
         rules = sw.make_rules(rec.rule, lookup_m=lookup_m, cfg=cfg, persist_steps=persist,
-                              setup=setup)
+                              setup=setup, lineup=self.lineup)
         return rules, est_params
 
     def evaluate(self, method: str, trials: int, seed: int, print_fn=None, **rule) -> dict:
@@ -326,7 +271,8 @@ class BaselineSetup:
 
     All run `dqn.dqn_rollout` (same resets, chunks, early stop and frozen metrics as
     `switching.multi_rollout`); a one-policy row is a suite of its record's `policy` whose
-    "selector" always picks it."""
+    "selector" always picks it. On another line-up's tracks they run as they are: the DQN chooses
+    among the paper's policies and its one-hot shows a kind it lacks as nothing detected."""
 
     def __init__(self, method: str, cfg: MultiConfig):
         trials, runs, stand_in, n_artifacts = cfg.trials, cfg.runs, cfg.stand_in, cfg.n_artifacts
@@ -334,13 +280,14 @@ class BaselineSetup:
         if method not in BASELINES:
             raise ValueError(f"unknown baseline {method!r}; expected one of {BASELINES}")
         self.method, rec = method, method_record(method)
+        kind = cfg.lineup.tracks
         if method == "dqn":
             run_dir = runs_lib.find_dqn(runs, "stand", dqn_dir)
             if run_dir is None:
                 raise FileNotFoundError(f"no stand-init DQN checkpoint under {dqn_dir or runs}/ or "
                                         f"{runs_lib.BASELINE_DIR}/ (make train-dqn)")
-            self.env = multi_env("stand", trials, n_artifacts, track_seed, detector_one_hot=True,
-                                 backend=backend,
+            self.env = multi_env("stand", trials, n_artifacts, track_seed, kind,
+                                 detector_one_hot=True, backend=backend,
                                  **pol.suite_env_overrides("stand", runs, stand_in=stand_in))
             self.suite = pol.load_suite("stand", self.env, runs, stand_in=stand_in)
             q_apply, self.q_params = dqn_train.load_dqn(run_dir, dqn_lib.q_input_size(self.env))
@@ -354,7 +301,7 @@ class BaselineSetup:
                               f"(make train-dqn) for a Table II row", stacklevel=2)
                 self.sources += (f"MISMATCH: selector trained with {trained_with}",)
         else:
-            self.env = multi_env("stand", trials, n_artifacts, track_seed, backend=backend,
+            self.env = multi_env("stand", trials, n_artifacts, track_seed, kind, backend=backend,
                                  **pol.suite_env_overrides("stand", runs, names=(rec.policy,)))
             self.suite = pol.load_suite("stand", self.env, runs, names=(rec.policy,))
             self.q_params = jax.numpy.zeros(())
@@ -367,6 +314,7 @@ class BaselineSetup:
         # the end-to-end policy reads no detector (only its heightmap); the DQN reads the detected
         # kind, the oracle's or the learned one's
         reads = method_record(method).reads_detector
+        parts_lib.check_detector(cfg.detector_dir if reads else None, cfg.lineup)
         det_apply, self.det_params, self.detector = load_detector(
             cfg.detector_dir if reads else None, env)
         if not reads and cfg.detector_dir is not None:
@@ -412,11 +360,11 @@ def evaluate_multi(methods, cfg: MultiConfig, seed: int, print_fn=print,
                   else used.evaluate(rec.name, cfg.trials, seed, print_fn))
         if per_trial is not None:
             per_trial[rec.name] = {k: np.asarray(merged[k]) for k in TRIAL_FIELDS if k in merged}
-        row = episode_table(merged)
+        row = episode_table(merged, cfg.lineup.targets)
         row.update(method=rec.name, init=rec.suite, wall_s=time.perf_counter() - t0,
                    switches_per_trial=float(np.mean(merged["n_switches"])),
                    policies=list(used.sources if rec.baseline else used.suite.sources),
-                   backend=used.env.backend, detector=used.detector)
+                   backend=used.env.backend, detector=used.detector, **lineup_meta(cfg.lineup))
         if not rec.baseline:
             if rec.setup:
                 row["policy_names"] = list(used.policy_names)
@@ -429,6 +377,15 @@ def evaluate_multi(methods, cfg: MultiConfig, seed: int, print_fn=print,
     return rows, setups
 
 
+def lineup_meta(lineup: kinds.Lineup) -> dict:
+    """What a row and a table record of their line-up: nothing for the paper's (its files stay
+    as they were), else its name, policies, targets and track kind."""
+    if lineup == kinds.PAPER_LINEUP:
+        return {}
+    return {"lineup": lineup.name, "lineup_policies": list(lineup.policies),
+            "lineup_targets": list(lineup.targets), "tracks": lineup.tracks}
+
+
 # Per-trial outcomes `evaluate multi` keeps beside the table (table2_trials.npz): trial i ran on
 # track MULTI_TRACK_SEED + i; fail_kind is the ARTIFACT_KINDS code of the artifact fallen on (-1: none)
 TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches", "switch_ahead_m",
@@ -439,9 +396,11 @@ TRIAL_FIELDS = ("success", "fell", "fail_kind", "progress_frac", "n_switches", "
 # rows of one table (the batch too: a policy's matmuls round differently at another batch size, and
 # a trajectory is chaotic), so `evaluate multi` may add rows to a table across sessions.
 TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "n_artifacts", "stand_in", "guide_scale",
-              "track_seed", "detector")
-# what a table made before these settings existed was made with
-TRIAL_DEFAULTS = {"track_seed": MULTI_TRACK_SEED, "detector": "oracle"}
+              "track_seed", "detector", "lineup")
+# what a table made before these settings existed was made with (a paper line-up table records
+# no line-up)
+TRIAL_DEFAULTS = {"track_seed": MULTI_TRACK_SEED, "detector": "oracle",
+                  "lineup": kinds.PAPER_LINEUP.name}
 
 
 def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]:
@@ -451,5 +410,5 @@ def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]
     came from."""
     if old:
         old = {**old, "settings": {**TRIAL_DEFAULTS, **old.get("settings", {})}}
-    return join_rows(old, rows, settings, TRIAL_KEYS, key=lambda r: r["method"],
-                     order=MULTI_METHODS)
+    return join_rows(old, rows, {**TRIAL_DEFAULTS, **settings}, TRIAL_KEYS,
+                     key=lambda r: r["method"], order=MULTI_METHODS)

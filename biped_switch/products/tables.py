@@ -3,7 +3,9 @@ rows, join them with the rows already in its folder, and write its Markdown, CSV
 
 One function per command: `single` (Table I), `multi` (Table II, with Fig. 5 of the rows that
 have one), `failures`, `switches` and `retrain_cost` (Table III). Each takes the command's flags
-(an argparse Namespace) and returns its exit status.
+(an argparse Namespace) and returns its exit status. `multi --lineup` other than the paper's
+(Table II-4) writes a failure column per target of its line-up and no paper column; the paper's
+claims, Fig. 5 and `failures` read the paper's kinds only, so they are left out for it.
 """
 
 from __future__ import annotations
@@ -18,14 +20,16 @@ import jax
 import numpy as np
 
 from biped_switch import paths
-from biped_switch.config import MULTI_TRACK_SEED, default_when_config
-from biped_switch.evaluation.multi import (BASELINES, MultiConfig, available_methods,
-                                           evaluate_multi, merge_rows, mixed_track)
+from biped_switch.config import LINEUP_TRACK_SEEDS, MULTI_TRACK_SEED, default_when_config
+from biped_switch.evaluation.multi import (BASELINES, MultiConfig, evaluate_multi, lineup_meta,
+                                           merge_rows, mixed_track)
+from biped_switch.evaluation.parts import available_methods, check_detector, lineup_gap, new_names
 from biped_switch.evaluation.single import evaluate_single, merge_rows as merge_table1
 from biped_switch.products.fig5 import fig5_traces
 from biped_switch.learning.runs import find_policy
-from biped_switch.kinds import KIND
+from biped_switch.kinds import KIND, LINEUP, PAPER_LINEUP
 from biped_switch.methods import method as method_record
+from biped_switch.names import MULTI_METHODS
 from biped_switch.paper import TABLE2_FAIL_ORDER
 from biped_switch.reports.fig4b import plot_switch_distances
 from biped_switch.reports.table1 import table1_markdown
@@ -35,6 +39,7 @@ from biped_switch.reports.table2 import (ceiling_markdown, claims_markdown, fail
                                          policy_on_falls_markdown, suite_ceiling, switch_outcomes,
                                          switch_summary, switches_markdown, table2_markdown)
 from biped_switch.reports.table3 import retrain_cost as table3_doc, table3_markdown
+from biped_switch.stats import dist_success_cells, pct_ci
 
 
 def _print(*s):
@@ -170,6 +175,11 @@ def failures(out) -> int:
               file=sys.stderr)
         return 2
     settings = json.loads((out / "table2.json").read_text())["settings"]
+    lineup = LINEUP[settings.get("lineup", PAPER_LINEUP.name)]
+    if new_names(lineup):
+        print(f"error: {out / 'table2.json'} is line-up {lineup.name}'s; `evaluate failures` "
+              f"reports the paper's kinds only, not {', '.join(new_names(lineup))}", file=sys.stderr)
+        return 2
     seed0 = settings.get("track_seed", MULTI_TRACK_SEED)
     tracks = [mixed_track(seed0 + i, settings["n_artifacts"]) for i in range(settings["trials"])]
     by_method, on_falls, where = {}, {}, {}
@@ -252,6 +262,51 @@ def when_cfg(margin=None, persist_steps=None, later_from=None):
     return cfg
 
 
+def resolve_lineup(a, error):
+    """The line-up of `evaluate multi`'s flags, once: its reporting tracks unless --track-seed,
+    the rows it can have unless --methods (a row it cannot have is refused, naming its part);
+    a learned detector must name its every target."""
+    lineup = LINEUP[a.lineup]
+    if a.track_seed is None:
+        if lineup.name not in LINEUP_TRACK_SEEDS:
+            error(f"--lineup {lineup.name}: no reporting tracks in config.LINEUP_TRACK_SEEDS; "
+                  f"give --track-seed")
+        a.track_seed = LINEUP_TRACK_SEEDS[lineup.name][0]
+    if a.methods is None:
+        a.methods = [m for m in MULTI_METHODS if lineup_gap(method_record(m), lineup) is None]
+    bad = [f"row {m}: line-up {lineup.name} has no {gap}" for m in a.methods
+           if (gap := lineup_gap(method_record(m), lineup))]
+    if bad:
+        error("; ".join(bad))
+    try:
+        check_detector(a.detector_dir if a.detector == "learned" else None, lineup)
+    except ValueError as e:
+        error(str(e))
+    return lineup
+
+
+def fail_order(lineup) -> tuple[str, ...]:
+    """Table II's failure columns for `lineup`: the paper's order, then its other targets."""
+    return (tuple(k for k in TABLE2_FAIL_ORDER if k in lineup.targets)
+            + tuple(k for k in lineup.targets if k not in TABLE2_FAIL_ORDER))
+
+
+def lineup_markdown(rows: list[dict], lineup) -> str:
+    """Table II's Markdown for a line-up the paper has no numbers for (Table II-4): a failure
+    column per target of the line-up, switches per trial, no paper column."""
+    order = fail_order(lineup)
+    head = (f"Line-up {lineup.name}: {', '.join(lineup.policies)} switching into "
+            f"{', '.join(lineup.targets)} on {lineup.tracks} tracks\n\n")
+    lines = ["| method | trials | % total dist. (95% CI) | % success (95% CI) | "
+             + "".join(f"% {KIND[k].singular} fail (CI) | " for k in order) + "switches/trial |",
+             "|---" * (5 + len(order)) + "|"]
+    for r in rows:
+        lines.append(f"| {r['method']} | {r['n']} | {dist_success_cells(r)} | "
+                     + " | ".join(pct_ci(r["fail_on"][k], r["fail_ci"][k]) for k in order)
+                     + f" | {r['switches_per_trial']:.2f} |")
+    return head + "\n".join(lines)
+
+
 def multi(a, error) -> int:
     """`evaluate multi`: Table II rows for `a.methods`, joined with the table in `a.out` made with
     the same settings (TRIAL_KEYS), saved with the per-trial outcomes, the claims and Fig. 5 of
@@ -260,27 +315,30 @@ def multi(a, error) -> int:
     t0 = time.perf_counter()
     json_path = pathlib.Path(a.out) / "table2.json"
     old = read_table(json_path, a.fresh)
+    lineup = resolve_lineup(a, error)
     settings = {**vars(a), "batch": batch}
     if a.detector == "oracle":
         settings.pop("detector_dir")
+    if lineup == PAPER_LINEUP:  # the paper's table records no line-up (its files stay as they were)
+        settings.pop("lineup")
     try:  # before an hour of rollouts, not after
         merge_rows(old, [], settings)
     except ValueError as e:
         error(f"{json_path}: {e}")
     a.methods, skipped = available_methods(a.methods, a.runs, a.estimators, a.lookup, a.dqn,
-                                           a.stand_in, a.when_dir)
+                                           a.stand_in, a.when_dir, lineup=lineup)
     for s in skipped:
         print(f"skipped {s}", file=sys.stderr)
     if not a.methods:
         print("evaluate multi: no method has its trained parts", file=sys.stderr)
         return 1
-    print(f"Table II: {len(a.methods)} methods x {a.trials} trials of mixed tracks (batch {batch}, "
-          f"{jax.local_device_count()} {jax.devices()[0].platform} device(s))", flush=True)
+    print(f"Table II: {len(a.methods)} methods x {a.trials} trials of {lineup.tracks} tracks (batch "
+          f"{batch}, {jax.local_device_count()} {jax.devices()[0].platform} device(s))", flush=True)
     per_trial = {}
     cfg = MultiConfig(a.trials, batch, a.horizon_s, a.runs, a.stand_in, a.estimators, a.lookup,
                       a.dqn, a.guide_scale, a.n_artifacts, a.backend, a.track_seed,
                       a.detector_dir if a.detector == "learned" else None, a.when_dir,
-                      when_cfg(a.when_margin, a.when_persist, a.when_later))
+                      when_cfg(a.when_margin, a.when_persist, a.when_later), lineup)
     rows, setups = evaluate_multi(a.methods, cfg, a.seed, _print, per_trial)
     session_s = time.perf_counter() - t0
     lock_file = lock(pathlib.Path(a.out))  # another `evaluate multi` may have added rows meanwhile
@@ -292,13 +350,14 @@ def multi(a, error) -> int:
         kept = [r["method"] for r in rows if r["method"] not in a.methods]
         print(f"kept from {json_path}: {', '.join(kept) or 'no rows'}", flush=True)
     settings["methods"] = [r["method"] for r in rows]
-    out = write_table(a.out, "table2", table2_markdown(rows),
+    fails, paper_kinds = fail_order(lineup), not new_names(lineup)
+    out = write_table(a.out, "table2",
+                       table2_markdown(rows) if paper_kinds else lineup_markdown(rows, lineup),
                        ["method", "init", "trials"]
-                       + [f"{KIND[k].singular}_fail_{c}" for k in TABLE2_FAIL_ORDER
-                          for c in ("pct", "lo", "hi")]
+                       + [f"{KIND[k].singular}_fail_{c}" for k in fails for c in ("pct", "lo", "hi")]
                        + ["switches_per_trial", "wall_s"],
                        [[r["method"], r["init"], r["n"]]
-                        + [v for k in TABLE2_FAIL_ORDER for v in (r["fail_on"][k], *r["fail_ci"][k])]
+                        + [v for k in fails for v in (r["fail_on"][k], *r["fail_ci"][k])]
                         + [r["switches_per_trial"], r["wall_s"]] for r in rows],
                        rows)
     # wall_s: the time to make the whole table, the sum of its rows' (each with its setup and
@@ -308,13 +367,17 @@ def multi(a, error) -> int:
         {"settings": settings, "rows": rows, "skipped": skipped, "wall_s": wall,
          "wall_s_session": session_s,
          "device": str(jax.devices()[0]), "backend": sorted({r["backend"] for r in rows}),
-         "track_seed": a.track_seed}, indent=2, default=str))
+         "track_seed": a.track_seed, **lineup_meta(lineup)}, indent=2, default=str))
     save_trials(out / "table2_trials.npz", per_trial, {r["method"] for r in rows})
-    claims_md = claims_markdown(paper_claims(rows))  # the paper's claims on the whole table
-    (out / "claims.md").write_text(claims_md + "\n")
-    print(claims_md, flush=True)
+    if paper_kinds:
+        claims_md = claims_markdown(paper_claims(rows))  # the paper's claims on the whole table
+        (out / "claims.md").write_text(claims_md + "\n")
+        print(claims_md, flush=True)
     lock_file.close()
-    if a.fig5_trial >= 0:
+    if a.fig5_trial >= 0 and not paper_kinds:
+        print(f"no Fig. 5 or claims for line-up {lineup.name}: they read the paper's kinds only",
+              flush=True)
+    elif a.fig5_trial >= 0:
         fig5_traces(setups, a.methods, a.fig5_trial, a.trials, a.seed, a.track_seed,
                     a.n_artifacts, out)
     print(json.dumps({"table2_wall_s": round(wall, 1), "session_s": round(session_s, 1),

@@ -49,6 +49,7 @@ from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_env_config, default_estimator_config
 from biped_switch.learning.networks import encode, layer_sizes, swish_mlp
 from biped_switch.learning.normalizer import column_stats, standardize
+from biped_switch.kinds import PAPER_LINEUP, Lineup
 from biped_switch.names import ARTIFACT_KINDS
 from biped_switch.simulation.observation import STATE_SIZE, layout
 
@@ -353,11 +354,14 @@ def load_estimator(path) -> tuple[dict, dict]:
     return jax.tree.map(np.asarray, params), runs_lib.read_json(path / "meta.json")
 
 
-def sweep_name(init: str, context: bool = False, lead_in: bool = False) -> str:
+def sweep_name(init: str, context: bool = False, lead_in: bool = False, *,
+               lineup: Lineup = PAPER_LINEUP) -> str:
     """The folder and file stem of a sweep's data, and of the estimators and lookup made from it:
     `<init>`, `<init>_context` for a context sweep (`sweep --context`), `<init>_leadin` for a
-    lead-in sweep (`sweep --lead-in`)."""
-    return f"{init}_leadin" if lead_in else f"{init}_context" if context else init
+    lead-in sweep (`sweep --lead-in`); a line-up other than the paper's appends `_<its name>`, so
+    its data and tables (other policies and targets) never mix with the paper's."""
+    name = f"{init}_leadin" if lead_in else f"{init}_context" if context else init
+    return name if lineup == PAPER_LINEUP else f"{name}_{lineup.name}"
 
 
 def load_estimator_set(init: str, model_dir="models/estimators", targets: Sequence[str] = TARGETS

@@ -2,8 +2,9 @@
 and the multi-policy rollout that applies them on multi-artifact tracks.
 
 Every method differs only in *when* it switches. The oracle detector names the next artifact once
-its start is within 0.9 m of the body; its policy (kinds.POLICY_OF_CODE) becomes the
-target, and the rule decides at each control step whether the active policy hands over now:
+its start is within 0.9 m of the body; the policy of the line-up that crosses it
+(`kinds.Lineup.policy_of_code`) becomes the target, and the rule decides at each control step
+whether the active policy hands over now:
   random         at a distance U(0, 0.9) m before the artifact, drawn at detection (the same
                  thing as a random distance travelled after detection)
   detection      at once
@@ -23,6 +24,12 @@ that never fires (and a distance stepped over between control steps) still switc
 While nothing is detected the active policy keeps control; an artifact policy also walks the
 flat after its artifact (>= 1.08 m) until the next artifact comes into range and its switch. The method is a traced integer and the rules' numbers are traced arrays, so
 all methods and both policy suites run through one compiled rollout.
+
+The rules are sized by a line-up (`kinds.Lineup`, default the paper's: 4 policies, 3 targets):
+`make_rules(..., lineup=)` puts its policy per artifact code, walk slot and policy count in
+`Rules` as arrays, so `decide` reads no module constant. A code the line-up does not switch into
+(a kind added after it) makes its walk policy the target; the lookup and estimator rules have no
+entry for it and switch at the forced distance.
 """
 
 from __future__ import annotations
@@ -39,37 +46,40 @@ from biped_switch.learning import policies as pol
 from biped_switch.config import default_switching_config
 from biped_switch.simulation.detection import debounce_step
 from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
-from biped_switch.simulation.terrain import ARTIFACT_KINDS
-from biped_switch.kinds import POLICY_OF_CODE
+from biped_switch.kinds import PAPER_LINEUP, Lineup
 from biped_switch.methods import RULES
 
 METHODS = RULES  # the rules a Table II row (methods.py) can name
 METHOD_INDEX = {m: i for i, m in enumerate(METHODS)}
-N_POLICIES = len(pol.POLICY_NAMES)
-N_TARGETS = len(ARTIFACT_KINDS)  # the switch targets: jumps, gaps, stairs
-_POLICY_OF_CODE = np.asarray(POLICY_OF_CODE, np.int32)  # the policy that crosses each artifact code
+# the paper line-up's sizes (the default line-up; other line-ups: Lineup.n_policies, .n_targets)
+N_POLICIES = PAPER_LINEUP.n_policies
+N_TARGETS = PAPER_LINEUP.n_targets  # the switch targets: jumps, gaps, stairs
 
 
 class Rules(NamedTuple):
     """Traced parameters of a switching method."""
 
     method: jax.Array  # int32 index into METHODS
-    lookup_m: jax.Array  # (N_POLICIES, N_TARGETS) switch distance [m] for active -> target
+    lookup_m: jax.Array  # (P, T) switch distance [m] for active -> target (P: suite, T: targets)
     threshold: jax.Array  # estimator threshold
     force_m: jax.Array  # forced switch distance [m]
     feet_tol_m: jax.Array
     margin_m: jax.Array  # CoM may be this far outside the support polygon [m]
     switch_max_m: jax.Array  # random method: U(0, switch_max_m)
     persist_steps: jax.Array  # int32: estimator: E >= threshold this many control steps in a row
-    setup_of: jax.Array  # (P, N_TARGETS) int32: the setup policy for active -> target (-1: none);
-    # policies from index N_POLICIES on are setup policies
-    handover_m: jax.Array  # (N_TARGETS,) a setup policy hands over this far before the target [m]
+    setup_of: jax.Array  # (P, T) int32: the setup policy for active -> target (-1: none);
+    # policies from index n_policies on are setup policies
+    handover_m: jax.Array  # (T,) a setup policy hands over this far before the target [m]
+    policy_of_code: jax.Array  # (T,) int32: the line-up's policy that crosses each artifact code
+    walk_policy: jax.Array  # int32: the line-up's flat-ground policy (target of an unknown code)
+    n_policies: jax.Array  # int32: the line-up's behaviour policies (slots 0..n-1; then setup)
 
 
 class SetupSlots(NamedTuple):
-    """Where setup policies sit in a suite (host-side, resolved once): `setup_of` (P, N_TARGETS)
-    the suite index of the setup policy for (active policy, target kind), -1 where the pair has
-    none; `handover_m` (N_TARGETS,) each target's hand-over distance [m] (NaN: no setup policy)."""
+    """Where setup policies sit in a suite (host-side, resolved once): `setup_of` (P, T) the suite
+    index of the setup policy for (active policy, target kind), -1 where the pair has none;
+    `handover_m` (T,) each target's hand-over distance [m] (NaN: no setup policy); T: the
+    line-up's targets."""
 
     setup_of: np.ndarray
     handover_m: np.ndarray
@@ -81,41 +91,57 @@ def _check_handover(what: str, handover_m) -> None:
                          f"detection range")
 
 
-def setup_slots(names, setups: dict) -> SetupSlots:
-    """SetupSlots of a suite whose policies are `names` (POLICY_NAMES, then setup policies), from
-    `setups` {setup policy name: (target kind, source policy names, hand-over distance [m])}."""
+def setup_slots(names, setups: dict, lineup: Lineup = PAPER_LINEUP) -> SetupSlots:
+    """SetupSlots of a suite whose policies are `names` (`lineup.policies`, then setup policies),
+    from `setups` {setup policy name: (target kind, source policy names, hand-over distance [m])};
+    a setup policy serves its pairs in any line-up that has its target and sources."""
     names = list(names)
-    if names[:N_POLICIES] != list(pol.POLICY_NAMES):
-        raise ValueError(f"a suite with setup policies starts with {pol.POLICY_NAMES}, got {names}")
-    setup_of = np.full((len(names), N_TARGETS), -1, np.int32)
-    handover = np.full(N_TARGETS, np.nan, np.float32)
+    if names[:lineup.n_policies] != list(lineup.policies):
+        raise ValueError(f"a suite of line-up {lineup.name} with setup policies starts with "
+                         f"{lineup.policies}, got {names}")
+    setup_of = np.full((len(names), lineup.n_targets), -1, np.int32)
+    handover = np.full(lineup.n_targets, np.nan, np.float32)
     for name, (target, sources, handover_m) in setups.items():
         if name not in names:
             raise ValueError(f"setup policy {name!r} is not in the suite {names}")
-        if target not in ARTIFACT_KINDS:
-            raise ValueError(f"{name}: target {target!r} is not one of {ARTIFACT_KINDS}")
+        k = _target_index(lineup, target, name)
         _check_handover(name, handover_m)
-        k = ARTIFACT_KINDS.index(target)
         for src in sources:
-            if src not in pol.POLICY_NAMES:
-                raise ValueError(f"{name}: source {src!r} is not one of {pol.POLICY_NAMES}")
-            setup_of[pol.POLICY_INDEX[src], k] = names.index(name)
+            setup_of[_source_slot(lineup, src, name), k] = names.index(name)
         handover[k] = float(handover_m)
     return SetupSlots(setup_of, handover)
 
 
-def walk_on_lookup(lookup_m, walk_on: dict, setup: SetupSlots | None = None) -> np.ndarray:
-    """The (N_POLICIES, N_TARGETS) lookup table with each walk-on pair's entry set to its
-    hand-over distance: `walk_on` {target kind: (source policy names, hand-over distance [m])},
-    pairs whose source is its own best setup and acts on to that distance. A pair that also has
-    a setup policy in `setup` is an error (which of the two would act?)."""
-    out = (np.zeros((N_POLICIES, N_TARGETS), np.float32) if lookup_m is None
+def _target_index(lineup: Lineup, target: str, what: str) -> int:
+    if target not in lineup.targets:
+        raise ValueError(f"{what}: target {target!r} is not one of line-up {lineup.name}'s "
+                         f"targets {lineup.targets}")
+    return lineup.targets.index(target)
+
+
+def _source_slot(lineup: Lineup, src: str, what: str) -> int:
+    if src not in lineup.policies:
+        raise ValueError(f"{what}: source {src!r} is not one of line-up {lineup.name}'s policies "
+                         f"{lineup.policies}")
+    return lineup.policies.index(src)  # slot order = index
+
+
+def walk_on_lookup(lookup_m, walk_on: dict, setup: SetupSlots | None = None,
+                   lineup: Lineup = PAPER_LINEUP) -> np.ndarray:
+    """The (n_policies, n_targets) lookup table of `lineup` with each walk-on pair's entry set to
+    its hand-over distance: `walk_on` {target kind: (source policy names, hand-over distance
+    [m])}, pairs whose source is its own best setup and acts on to that distance. A pair that
+    also has a setup policy in `setup` is an error (which of the two would act?)."""
+    shape = (lineup.n_policies, lineup.n_targets)
+    out = (np.zeros(shape, np.float32) if lookup_m is None
            else np.array(lookup_m, np.float32, copy=True))
+    if out.shape != shape:
+        raise ValueError(f"lookup table of line-up {lineup.name} must be {shape}, got {out.shape}")
     for target, (sources, handover_m) in walk_on.items():
         _check_handover(f"walk-on into {target}", handover_m)
-        k = ARTIFACT_KINDS.index(target)
+        k = _target_index(lineup, target, "walk-on")
         for src in sources:
-            j = pol.POLICY_INDEX[src]
+            j = _source_slot(lineup, src, f"walk-on into {target}")
             if setup is not None and setup.setup_of[j, k] >= 0:
                 raise ValueError(f"walk-on pair {src} -> {target} also has a setup policy")
             out[j, k] = float(handover_m)
@@ -123,22 +149,26 @@ def walk_on_lookup(lookup_m, walk_on: dict, setup: SetupSlots | None = None) -> 
 
 
 def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9,
-               persist_steps: int | None = None, setup: SetupSlots | None = None) -> Rules:
-    """Traced rules of `method`; `setup`: the suite's setup policies (None: a suite of the four
+               persist_steps: int | None = None, setup: SetupSlots | None = None,
+               lineup: Lineup = PAPER_LINEUP) -> Rules:
+    """Traced rules of `method` for `lineup`'s policies and targets (the lookup table is
+    (n_policies, n_targets)); `setup`: the suite's setup policies (None: a suite of the line-up's
     behaviour policies, no setup)."""
     if method not in METHOD_INDEX:
         raise ValueError(f"unknown switching method {method!r}; expected one of {METHODS}")
     cfg = cfg or default_switching_config()
+    n_pol, n_tgt = lineup.n_policies, lineup.n_targets
     if lookup_m is None:
         if method == "lookup":
             raise ValueError("the lookup method needs a lookup table (python -m biped_switch.sweep)")
-        lookup_m = np.zeros((N_POLICIES, N_TARGETS))
+        lookup_m = np.zeros((n_pol, n_tgt))
     lookup_m = np.asarray(lookup_m, np.float32)
-    if lookup_m.shape != (N_POLICIES, N_TARGETS):
-        raise ValueError(f"lookup table must be {(N_POLICIES, N_TARGETS)}, got {lookup_m.shape}")
+    if lookup_m.shape != (n_pol, n_tgt):
+        raise ValueError(f"lookup table must be {(n_pol, n_tgt)} (line-up {lineup.name}: "
+                         f"{lineup.policies} x {lineup.targets}), got {lookup_m.shape}")
     if method == "lookup":
         own = np.zeros_like(lookup_m, bool)
-        own[np.arange(1, N_POLICIES), np.arange(N_TARGETS)] = True  # a target's own policy: unused
+        own[list(lineup.policy_of_code), np.arange(n_tgt)] = True  # a target's own policy: unused
         missing = np.argwhere(np.isnan(lookup_m) & ~own)
         if len(missing):
             warnings.warn(f"lookup table has no data for {len(missing)} pair(s) (active, target) "
@@ -148,16 +178,20 @@ def make_rules(method: str, lookup_m=None, cfg=None, switch_max_m: float = 0.9,
     if persist < 1:
         raise ValueError(f"persist_steps must be >= 1 (1: the paper's rule), got {persist}")
     if setup is None:
-        setup = SetupSlots(np.full((N_POLICIES, N_TARGETS), -1, np.int32),
-                           np.full(N_TARGETS, np.nan, np.float32))
+        setup = SetupSlots(np.full((n_pol, n_tgt), -1, np.int32), np.full(n_tgt, np.nan, np.float32))
+    if setup.setup_of.shape[1] != n_tgt or setup.setup_of.shape[0] < n_pol:
+        raise ValueError(f"setup slots {setup.setup_of.shape} do not fit line-up {lineup.name} "
+                         f"({n_pol} policies, {n_tgt} targets): setup_slots(..., lineup=)")
     # a setup policy's row of the lookup is never read (it hands over at its own distance)
-    lookup_m = np.concatenate([lookup_m, np.zeros((setup.setup_of.shape[0] - N_POLICIES,
-                                                   N_TARGETS), np.float32)])
+    lookup_m = np.concatenate([lookup_m, np.zeros((setup.setup_of.shape[0] - n_pol, n_tgt),
+                                                  np.float32)])
     f32 = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
-    return Rules(jnp.asarray(METHOD_INDEX[method], jnp.int32), jnp.asarray(np.nan_to_num(lookup_m)),
+    i32 = lambda v: jnp.asarray(v, jnp.int32)  # noqa: E731
+    return Rules(i32(METHOD_INDEX[method]), jnp.asarray(np.nan_to_num(lookup_m)),
                  f32(cfg.estimator_threshold), f32(cfg.force_switch_m), f32(cfg.feet_tol_m),
-                 f32(cfg.support_margin_m), f32(switch_max_m), jnp.asarray(persist, jnp.int32),
-                 jnp.asarray(setup.setup_of, jnp.int32), f32(np.nan_to_num(setup.handover_m)))
+                 f32(cfg.support_margin_m), f32(switch_max_m), i32(persist),
+                 i32(setup.setup_of), f32(np.nan_to_num(setup.handover_m)),
+                 i32(lineup.policy_of_code), i32(lineup.walk_policy), i32(n_pol))
 
 
 class SwitchState(NamedTuple):
@@ -242,19 +276,23 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
     """One env, one control step: (new controller state, switched now?).
 
     det_*: the oracle detection (kind -1 when nothing is in range), com_ok: com_over_feet,
-    est_probs (N_TARGETS,): every estimator's output on the current observation (a model that
+    est_probs (T,): every estimator's output on the current observation (a model that
     reads the context, the learned when rule: its score for the detected target in every slot;
     the estimator rule then compares that score with the threshold, its margin), u01: a uniform
-    draw in [0, 1) used when a new artifact is detected (random method)."""
+    draw in [0, 1) used when a new artifact is detected (random method). Sized by `rules` (its
+    line-up): a detected code it has no target for makes its walk policy the target, with no
+    lookup entry, estimate or setup policy (switched at the forced distance by those rules)."""
     seen = det_kind >= 0
-    kind = jnp.maximum(det_kind, 0)
+    known = seen & (det_kind < rules.policy_of_code.shape[0])  # a target of the line-up
+    kind = jnp.clip(det_kind, 0, rules.policy_of_code.shape[0] - 1)
     new_art = seen & (det_index != ss.art_index)
     random_m = jnp.where(new_art, u01 * rules.switch_max_m, ss.random_m)
-    target = jnp.where(seen, jnp.asarray(_POLICY_OF_CODE)[kind], ss.active)
+    target = jnp.where(seen, jnp.where(known, rules.policy_of_code[kind], rules.walk_policy),
+                       ss.active)
     pending = target != ss.active
-    lookup_m = rules.lookup_m[ss.active, kind]
+    lookup_m = jnp.where(known, rules.lookup_m[ss.active, kind], 0.0)
     # a run of confident estimates, counted afresh for each artifact
-    est_run = jnp.where(seen & (est_probs[kind] >= rules.threshold),
+    est_run = jnp.where(known & (est_probs[kind] >= rules.threshold),
                         jnp.where(new_art, 0, ss.est_run) + 1, 0).astype(jnp.int32)
     fire = jnp.stack([
         det_dist_m <= random_m,
@@ -265,9 +303,10 @@ def decide(ss: SwitchState, det_kind, det_index, det_dist_m, com_ok, est_probs, 
     ])[rules.method]
     # setup policies: into one at detection (unless already inside its hand-over distance), out
     # of one into the target's policy at the hand-over distance
-    setup, handover_m = rules.setup_of[ss.active, kind], rules.handover_m[kind]
+    setup = jnp.where(known, rules.setup_of[ss.active, kind], -1)
+    handover_m = rules.handover_m[kind]
     into_setup = pending & (setup >= 0) & (det_dist_m > handover_m)
-    fire = jnp.where(ss.active >= N_POLICIES, det_dist_m <= handover_m, fire)
+    fire = jnp.where(ss.active >= rules.n_policies, det_dist_m <= handover_m, fire)
     switch = pending & (into_setup | fire | (det_dist_m <= rules.force_m))
     target = jnp.where(into_setup, setup, target)
     new = ss._replace(active=jnp.where(switch, target, ss.active).astype(jnp.int32),
@@ -290,10 +329,14 @@ def controller_inputs(env, state, est_apply, est_params, rules: Rules, det_apply
         si["detect"] = det_apply(det_params, state.obs, si["yaw"])
     com_ok = jax.vmap(com_over_feet, in_axes=(0, 0, 0, 0, None, None))(
         si["body_com"], si["soles"], si["contact"], si["yaw"], rules.feet_tol_m, rules.margin_m)
+    n_targets = rules.lookup_m.shape[1]
     if est_apply is None or reads_context(est_apply):  # none, or computed after the detection
-        probs = jnp.zeros((state.obs.shape[0], N_TARGETS))
+        probs = jnp.zeros((state.obs.shape[0], n_targets))
     else:
-        probs = jax.vmap(est_apply, in_axes=(0, None))(est_params, state.obs).T  # (B, N_TARGETS)
+        probs = jax.vmap(est_apply, in_axes=(0, None))(est_params, state.obs).T  # (B, T)
+        if probs.shape[1] != n_targets:
+            raise ValueError(f"{probs.shape[1]} switch estimators for rules of {n_targets} targets: "
+                             f"the estimators were made for another line-up")
     return {**si, "com_ok": com_ok, "est_probs": probs}
 
 
@@ -320,7 +363,7 @@ def switch_and_act(env, suite_apply, suite_params, est_apply, est_params, rules:
                                   "dist_m": jnp.where(kind >= 0, det["dist_m"], jnp.inf)}
         if reads_context(est_apply):  # its score for the detected target, in every slot
             sc = est_apply(est_params, state.obs, ss.active, det["kind"], det["dist_m"])
-            ci["est_probs"] = jnp.broadcast_to(sc[:, None], (sc.shape[0], N_TARGETS))
+            ci["est_probs"] = jnp.broadcast_to(sc[:, None], (sc.shape[0], rules.lookup_m.shape[1]))
         n_before = ss.n_switches
         ss, switched = jax.vmap(decide, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
             ss, det["kind"], index, det["dist_m"], ci["com_ok"], ci["est_probs"], u01, rules)
@@ -371,7 +414,8 @@ def multi_rollout(env, suite_apply, suite_params, est_apply, est_params, rules: 
         hit = (switched & live)[:, None] & at
         ahead = jnp.where(hit, truth["dist_m"][:, None], ahead)
         # every switch's record: from which policy, forced or not, the rule's output there
-        output = jnp.take_along_axis(ci["est_probs"], jnp.maximum(det["kind"], 0)[:, None], 1)[:, 0]
+        k_out = jnp.clip(det["kind"], 0, ci["est_probs"].shape[1] - 1)  # the rules' target slot
+        output = jnp.take_along_axis(ci["est_probs"], k_out[:, None], 1)[:, 0]
         forced = det["dist_m"] <= rules.force_m
         log = {"switch_from": jnp.where(hit, before[:, None], log["switch_from"]),
                "switch_forced": jnp.where(hit, forced[:, None], log["switch_forced"]),

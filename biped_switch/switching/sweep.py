@@ -33,6 +33,9 @@ lookup table and figure are named `<init>_context`.
 A *lead-in* sweep (ours) goes one step further: every episode starts with walk, and the earlier
 hand-overs follow the context lookup table, as on Table II's tracks (`sweep_tracks.leadin_plan`);
 named `<init>_leadin`. The tracks and plans are in `sweep_tracks.py`.
+
+A context sweep of another line-up (`--lineup stones`: a `kinds.Lineup`'s policies, targets and
+track kind) is named `<init>_context_stones`; plain and lead-in sweeps are the paper's only.
 """
 
 from __future__ import annotations
@@ -49,9 +52,8 @@ import numpy as np
 
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
-from biped_switch.simulation import terrain
 from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_switching_config
-from biped_switch.kinds import POLICY_OF_CODE
+from biped_switch.kinds import PAPER_LINEUP, POLICY_OF_CODE, Lineup, policy_for
 from biped_switch.paths import LOOKUP
 from biped_switch.switching.estimator import sweep_name
 from biped_switch.switching.lookup import load_context_lookup
@@ -60,7 +62,8 @@ from biped_switch.simulation.rollout import episode_keys, over_devices, reset_by
 from biped_switch.switching.labels import (label_step, labelling_init, window_fill, window_init,
                                            window_update)
 from biped_switch.switching.sweep_tracks import (context_plan, leadin_plan, make_context_env,
-                                                 make_env)
+                                                 check_sweep_kind, make_env, others,
+                                                 sweep_lineup)
 
 
 # ----------------------------------------------------------------------- the rollout
@@ -179,7 +182,7 @@ def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_i
     `lead_m` the lead-in's switch table (a lead-in sweep). With `replay`: (params, rng,
     track_ids, sources, switch_at_m, reset_keys)."""
     horizon = int(round(cfg.horizon_s / env.dt))
-    tgt = pol.POLICY_INDEX[target]
+    tgt = policy_for(target)  # its slot in any line-up's suite (slot = Behaviour.index)
     tidx_of = None if target_index is None else jnp.asarray(target_index, jnp.int32)
 
     def one(params, rng, ids, src, switch_at_m=None, reset_keys=None):
@@ -197,19 +200,23 @@ def make_runner(env, apply, target: str, cfg, guide_scale: float = 0.0, target_i
 
 
 def sweep_env(init: str, target: str, cfg, runs, n_tracks: int, stand_in=None,
-              backend: str = "auto", context: bool = False, lead_in: bool = False):
+              backend: str = "auto", context: bool = False, lead_in: bool = False,
+              lineup: Lineup = PAPER_LINEUP):
     """(env, policy suite, source per track, target artifact index per track) of a sweep; the
     last two are None for the paper's sweep (sources cycle, the first artifact). A `lead_in`
-    sweep (a kind of context sweep) lays out `leadin_plan`'s tracks."""
-    overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in)
+    sweep (a kind of context sweep) lays out `leadin_plan`'s tracks. The suite is `lineup`'s
+    policies in slot order, and a context sweep's tracks its plan on its track kind."""
+    overrides = pol.suite_env_overrides(init, runs, stand_in=stand_in, names=lineup.policies)
     if context or lead_in:
         plan = leadin_plan if lead_in else context_plan
-        kinds, track_src, track_tidx = plan(target, n_tracks)
-        env = make_context_env(kinds, init, cfg.difficulty, backend=backend, **overrides)
+        kinds, track_src, track_tidx = plan(target, n_tracks, lineup)
+        env = make_context_env(kinds, init, cfg.difficulty, lineup=lineup, backend=backend,
+                               **overrides)
     else:
         track_src = track_tidx = None
         env = make_env(target, init, n_tracks, cfg.difficulty, backend=backend, **overrides)
-    return env, pol.load_suite(init, env, runs, stand_in=stand_in), track_src, track_tidx
+    suite = pol.load_suite(init, env, runs, stand_in=stand_in, names=lineup.policies)
+    return env, suite, track_src, track_tidx
 
 
 def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, backend="auto",
@@ -230,7 +237,7 @@ def replay_labels(data: dict, n: int, batch: int, runs="runs", stand_in=None, ba
     lead_in = bool(meta.get("lead_in"))
     env, suite, track_src, track_tidx = sweep_env(
         meta["init"], meta["target"], cfg, runs, int(meta["n_tracks"]), stand_in, backend,
-        bool(meta.get("context")), lead_in)
+        bool(meta.get("context")), lead_in, sweep_lineup(meta))
     sample_idx = np.unique(data["sample"])  # global episode index: batch b * sweep batch + i
     first = np.searchsorted(data["sample"], sample_idx)
     dist = data["switch_dist_m"][first]
@@ -359,12 +366,13 @@ class SweepRun(NamedTuple):
 def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", seed: int = 0,
               n_tracks: int = 512, stand_in: str | None = None, guide_scale: float = 0.0,
               print_fn=print, backend: str = "auto", context: bool = False,
-              lead_in: bool = False, lookup_results=LOOKUP) -> SweepRun:
+              lead_in: bool = False, lookup_results=LOOKUP,
+              lineup: Lineup = PAPER_LINEUP) -> SweepRun:
     """Runs (or resumes, or extends to `cfg.n_points`) the sweep of one target kind, on the
     physics `backend`, in an env with the policy suite's env overrides. With `context`, the
     tracks are `context_plan`'s two-artifact tracks and the data go to `<init>_context/`; with
     `lead_in`, `leadin_plan`'s, walk leading in by the context lookup (under `lookup_results`),
-    to `<init>_leadin/`.
+    to `<init>_leadin/`. Another `lineup` than the paper's: context only, `<init>_context_<it>/`.
 
     part_dir/meta.json keeps `wall_s_total`, the sum of the wall times of the sessions that ran
     batches; it is updated after every part and on an exception, so an interrupted session's time
@@ -372,16 +380,20 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
 
     One function: one resumable session top to bottom, `write_meta` closing over its wall time."""
     t_start = time.perf_counter()
-    if target not in terrain.ARTIFACT_KINDS:
-        raise ValueError(f"target must be one of {terrain.ARTIFACT_KINDS}, got {target!r}")
-    name = sweep_name(init, context, lead_in)
+    if target not in lineup.targets:
+        raise ValueError(f"target must be one of line-up {lineup.name}'s {lineup.targets}, "
+                         f"got {target!r}")
+    check_sweep_kind(lineup, context, lead_in)
+    name = sweep_name(init, context, lead_in, lineup=lineup)
     part_dir = out_dir / name / target
     part_dir.mkdir(parents=True, exist_ok=True)
     env, suite, track_src, track_tidx = sweep_env(init, target, cfg, runs, n_tracks, stand_in,
-                                                  backend, context, lead_in)
-    lead_m = load_context_lookup(init, lookup_results)[0] if lead_in else None  # (P, 3) [m]
-    meta = {"init": init, "target": target, "seed": seed, "n_tracks": n_tracks,
-            "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(pol.POLICY_NAMES, suite.sources)),
+                                                  backend, context, lead_in, lineup)
+    lead_m = load_context_lookup(init, lookup_results, lineup)[0] if lead_in else None  # (P, T)
+    # no line-up named: the paper's (its meta as before line-ups existed; see `sweep_lineup`)
+    named = {} if lineup == PAPER_LINEUP else {"lineup": lineup.name}
+    meta = {"init": init, "target": target, **named, "seed": seed, "n_tracks": n_tracks,
+            "track_seed": SWEEP_TRACK_SEED, "policies": dict(zip(lineup.policies, suite.sources)),
             "config": cfg.to_dict(), "window": list(cfg.window), "guide_scale": guide_scale,
             "env_overrides": dict(suite.env_overrides),
             "backend": env_lib.resolve_backend(backend), "context": bool(context or lead_in),
@@ -406,7 +418,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
         meta_path.write_text(json.dumps(meta, indent=2, default=str))
 
     write_meta(wall0)
-    others = np.array([j for j in range(len(pol.POLICY_NAMES)) if j != pol.POLICY_INDEX[target]])
+    srcs = np.array(others(target, lineup))
     runner = make_runner(env, suite.apply, target, cfg, guide_scale, track_tidx, lead_m=lead_m)
     parts = sorted(part_dir.glob("part_*.npz"))
     have = sum(int(np.load(p)["label"].shape[0]) for p in parts)
@@ -423,7 +435,7 @@ def run_sweep(init: str, target: str, cfg, out_dir: pathlib.Path, runs="runs", s
             t_b = time.perf_counter()
             idx = np.arange(b * batch, (b + 1) * batch)
             ids = jnp.asarray(idx % n_tracks, jnp.int32)
-            src = jnp.asarray(others[idx % len(others)] if track_src is None
+            src = jnp.asarray(srcs[idx % len(srcs)] if track_src is None
                               else track_src[idx % n_tracks], jnp.int32)
             rng = jax.random.fold_in(jax.random.PRNGKey(seed), b)
             out = jax.device_get(runner(suite.params, rng, ids, src))
