@@ -566,13 +566,13 @@ def test_update_flags_set_the_ppo_update_and_a_resume_keeps_its_own(tmp_path, mo
     seen = []
     monkeypatch.setattr(train_lib, "train", lambda cfg, run_dir, *a, **k: seen.append(
         (cfg.ppo.num_updates_per_batch, cfg.ppo.num_minibatches)))
-    argv = ["--policy", "walk", "--preset", "cpu", "--out", str(tmp_path)]
+    argv = ["--policy", "walk", "--preset", "cpu", "--out", str(tmp_path), "--name", "w"]  # no committed copy
     preset = default_train_config("cpu").ppo
     train_cli.main(argv)
     saved = default_train_config("cpu")
     saved.ppo.update(num_updates_per_batch=2, num_minibatches=8)
-    (tmp_path / "walk_stand").mkdir()
-    (tmp_path / "walk_stand" / "config.json").write_text(saved.to_json_best_effort())
+    (tmp_path / "w").mkdir()
+    (tmp_path / "w" / "config.json").write_text(saved.to_json_best_effort())
     train_cli.main(argv)
     train_cli.main(argv + ["--update-epochs", "1", "--minibatches", "16"])
     assert seen == [(preset.num_updates_per_batch, preset.num_minibatches), (2, 8), (1, 16)]

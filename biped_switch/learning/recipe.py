@@ -46,6 +46,10 @@ DONE = "replay.json"  # written in a replay's run folder once every segment has 
 ENDS = ("curriculum", "total steps", "by hand")
 # each command's step ceiling flag
 TOTAL = {"train": "--total-steps", "dqn": "--total-steps", "distill": "--total-steps"}
+# settings whose default may change under a committed run: its replay passes the run's own
+# (initial_config) by these flags of `train`, unless the recipe sets them
+PINNED = {"--update-epochs": ("ppo", "num_updates_per_batch"),
+          "--minibatches": ("ppo", "num_minibatches")}
 
 
 class RecipeError(ValueError):
@@ -79,9 +83,20 @@ def load(run_dir) -> dict:
     return rec
 
 
+def pinned(rec: dict) -> dict:
+    """{flag: the run's own value} of the `PINNED` settings its initial config.json records
+    (a `train` recipe only)."""
+    if rec["command"] != "train":
+        return {}
+    cfg = (rec.get("initial_config") or {}).get("config") or {}
+    return {flag: cfg[sec][key] for flag, (sec, key) in PINNED.items()
+            if key in cfg.get(sec, {})}
+
+
 def flags_at(rec: dict, step: int) -> dict:
-    """The flags in force after `step`: `start` with every change at or before it applied."""
-    flags = dict(rec["start"])
+    """The flags in force after `step`: the pinned settings, then `start`, with every change at
+    or before it applied."""
+    flags = {**pinned(rec), **rec["start"]}
     for c in rec["changes"]:
         if c["step"] <= step:
             flags[c["flag"]] = c["value"]
