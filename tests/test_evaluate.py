@@ -19,7 +19,7 @@ from biped_switch.learning import runs as runs_lib
 from biped_switch import stats
 from biped_switch.evaluation import single as table1
 from biped_switch.reports import table1 as table1_report
-from biped_switch.evaluation import multi as table2
+from biped_switch.evaluation import multi as table2, parts
 from biped_switch.reports import table2 as table2_report
 from biped_switch.reports import table3
 from biped_switch.simulation import terrain
@@ -303,7 +303,7 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     monkeypatch.setattr(runs_lib, "BASELINE_DIR", tmp_path / "baselines")
     runs, est, lookup = tmp_path / "runs", tmp_path / "est", tmp_path / "lookup"
     when_dir = tmp_path / "when"
-    avail = functools.partial(table2.available_methods, when_dir=when_dir)
+    avail = functools.partial(parts.available_methods, when_dir=when_dir)
     for n in ("walk", "jumps", "gaps", "stairs"):  # the stand suite
         _fake_ckpt(runs / f"{n}_stand")
     ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
@@ -355,7 +355,7 @@ def test_available_methods_names_what_is_missing(tmp_path, monkeypatch):
     _fake_ckpt(runs / "setup_gaps_stand")
     (runs / "setup_gaps_stand" / "config.json").write_text(
         '{"setup": {"target": "gaps", "sources": ["jumps", "stairs"], "handover_m": 0.45}}')
-    assert table2.find_setup_policies("stand", runs) == {
+    assert parts.find_setup_policies("stand", runs) == {
         "setup_gaps": ("gaps", ("jumps", "stairs"), 0.45)}
     ok, skipped = avail(names.MULTI_METHODS, runs, est, lookup)
     assert [s.split(":")[0] for s in skipped] == [m for m in names.MULTI_METHODS

@@ -14,6 +14,7 @@ import numpy as np
 from biped_switch import paths
 from biped_switch.config import MULTI_TRACK_SEED, default_env_config
 from biped_switch.evaluation import multi as table2
+from biped_switch.evaluation.parts import available_methods
 from biped_switch.evaluation import trace as fig5
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
@@ -47,8 +48,8 @@ def run_demo(a) -> int:
     t0 = time.perf_counter()
     out = pathlib.Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    methods, skipped = table2.available_methods(table2.MULTI_METHODS, a.runs, a.estimators,
-                                                a.lookup, a.dqn)
+    methods, skipped = available_methods(table2.MULTI_METHODS, a.runs, a.estimators, a.lookup,
+                                         a.dqn)
     print(f"demo: {len(methods)} methods x {a.trials} mixed {a.n_artifacts}-artifact tracks "
           f"({a.horizon_s:.0f} s limit), then Fig. 5 and a GIF of one trial. Finishes in under 10 "
           f"minutes on 2 CPU cores (about 40% of it compiling the rollouts), about a minute on a GPU.",
