@@ -49,6 +49,18 @@ From `experiments/results/walk_stand/table1.md` and `experiments/results/walk_ra
 
 {{include walk_random/table1.md}}
 
+### Two seeds: the stand suite replayed by its recipes (seed 1, in progress)
+
+From `experiments/results/table1_seed1/table1.md`: the seed-1 replays (`models/replay_seed1/`,
+`train --recipe ... --seed 1`, unattended), each on Table I's tracks once it finishes; so far
+`walk_stand`, on 500 flat tracks beside seed 0's on the same 500
+(`experiments/results/table1_walk_seed0/table1.md`). The artifact policies' rows come when their
+replays end.
+
+{{include table1_seed1/table1.md}}
+
+{{include table1_walk_seed0/table1.md}}
+
 ## Table II: switching methods and baselines on mixed tracks
 
 From `experiments/results/table2/table2.md`: {{t2_trials}} random {{t2_artifacts}}-artifact `mixed` tracks (seeds {{t2_seeds}}),
