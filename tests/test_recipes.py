@@ -342,3 +342,18 @@ def test_a_warm_start_source_replays_past_its_export_without_a_rule_its_run_lack
                 assert seg["flags"].get("--push-plateau-steps") == 0, (rec["run"], seg["until"])
                 checked += 1
     assert checked >= 4  # walk_stand's segments up to 32.37M
+
+
+def test_a_replay_pins_the_update_its_run_trained_with():
+    """A committed `train` run's replay passes the PPO update of its initial config.json
+    (`recipe.PINNED`), whatever today's preset says; a flag the recipe sets itself wins, and a
+    command without those flags (dqn, distill) gets none."""
+    rec = {"command": "train", "start": {"--policy": "walk"}, "changes": [],
+           "initial_config": {"config": {"ppo": {"num_updates_per_batch": 4, "num_minibatches": 4}}}}
+    assert recipe_lib.flags_at(rec, 0) == {"--update-epochs": 4, "--minibatches": 4, "--policy": "walk"}
+    rec["start"]["--minibatches"] = 8
+    assert recipe_lib.flags_at(rec, 0)["--minibatches"] == 8
+    assert recipe_lib.pinned({**rec, "command": "dqn"}) == {}
+    assert recipe_lib.pinned({**rec, "initial_config": {"config": {"ppo": {}}}}) == {}
+    walk = recipe_lib.load(REPO / "models" / "policies" / "walk_stand")
+    assert recipe_lib.segments(walk)[0]["flags"]["--update-epochs"] == 4
