@@ -25,7 +25,7 @@ DETECTOR_VAL_OFFSET = 500
 DETECTOR_MIXED_OFFSET = 9_000
 TUNE_TRACK_SEED = 50_000  # mixed tracks for tuning switching thresholds (`evaluate multi --track-seed`)
 STUDENT_TRACK_SEED = 80_000  # the distilled student's training tracks: mixed (setup: 60_000, 70_000)
-# (reporting, tuning) mixed tracks of a line-up's Table II (kinds.LINEUPS): Table II-4 for stones
+# (reporting, tuning) mixed tracks of a line-up's Table II (lineups.LINEUPS): Table II-4 for stones
 LINEUP_TRACK_SEEDS = {"paper": (MULTI_TRACK_SEED, TUNE_TRACK_SEED), "stones": (100_000, 110_000)}
 
 

@@ -42,7 +42,7 @@ import argparse
 
 from biped_switch import cli
 from biped_switch.config import EVAL_TRACK_SEED, LINEUP_TRACK_SEEDS
-from biped_switch.kinds import LINEUP, PAPER_LINEUP
+from biped_switch.lineups import LINEUP, PAPER_LINEUP
 from biped_switch.products import tables
 from biped_switch.evaluation.single import HORIZON_MARGIN, HORIZON_SPEED_MPS
 from biped_switch.learning.runs import BASELINE_DIR

@@ -9,7 +9,7 @@ import argparse
 import pathlib
 
 from biped_switch import cli
-from biped_switch import kinds
+from biped_switch import kinds, lineups
 from biped_switch.config import default_sweep_config
 from biped_switch.products import sweep as sweep_products
 from biped_switch.simulation import terrain
@@ -20,8 +20,8 @@ from biped_switch.switching.sweep_tracks import check_sweep_kind
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m biped_switch.sweep", description=__doc__.split("\n")[0])
     cli.add_init(p)
-    p.add_argument("--lineup", default=kinds.PAPER_LINEUP.name, choices=list(kinds.LINEUP),
-                   help="whose policies switch into which targets (kinds.LINEUPS; default the "
+    p.add_argument("--lineup", default=lineups.PAPER_LINEUP.name, choices=list(lineups.LINEUP),
+                   help="whose policies switch into which targets (lineups.LINEUPS; default the "
                         "paper's); another than paper: --context only, named <init>_context_<it>")
     p.add_argument("--targets", nargs="+", default=None, choices=kinds.ALL_ARTIFACT_KINDS,
                    help="the targets to sweep (default: every target of the line-up)")
@@ -54,7 +54,7 @@ def main(argv=None) -> int:
                         "the label agrees (RESULTS/label_noise.json)")
     p.add_argument("--replay-batch", type=cli.positive_int, default=128)
     a = p.parse_args(argv)
-    lineup = kinds.LINEUP[a.lineup]  # resolved once: everything below reads the record
+    lineup = lineups.LINEUP[a.lineup]  # resolved once: everything below reads the record
     try:
         check_sweep_kind(lineup, a.context, a.lead_in)
     except ValueError as e:

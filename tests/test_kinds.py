@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from biped_switch import kinds, names
+from biped_switch import kinds, lineups, names
 from biped_switch.config import default_terrain_config
 from biped_switch.simulation import terrain
 
@@ -188,18 +188,18 @@ def test_vectorised_lookups_by_hand(xp_name):
 def test_lineups_by_hand():
     """The paper's line-up is the paper=True records; the stones line-up adds stones as slot 4 and
     target 3 (its artifact code), so a code maps to the same policy in both where both know it."""
-    paper, stones = kinds.LINEUP["paper"], kinds.LINEUP["stones"]
+    paper, stones = lineups.LINEUP["paper"], lineups.LINEUP["stones"]
     assert (paper.policies, paper.targets) == (kinds.POLICY_NAMES, kinds.ARTIFACT_KINDS)
     assert paper.policy_of_code == kinds.POLICY_OF_CODE == (1, 2, 3)
     assert stones.policy_of_code == (1, 2, 3, 4) and stones.walk_policy == paper.walk_policy == 0
     assert (stones.n_policies, stones.n_targets, stones.tracks) == (5, 4, "mixed4")
     code = np.asarray([-1, 0, 1, 2, 3])
-    assert kinds.policy_of_code(code, np, stones).tolist() == [0, 1, 2, 3, 4]
-    assert kinds.policy_of_code(code, np, paper).tolist() == [0, 1, 2, 3, 0]
+    assert lineups.policy_of_code(code, np, stones).tolist() == [0, 1, 2, 3, 4]
+    assert lineups.policy_of_code(code, np, paper).tolist() == [0, 1, 2, 3, 0]
 
 
 def test_inconsistent_lineups_are_refused():
-    t, b, s = kinds.TERRAIN, kinds.BEHAVIOURS, kinds.LINEUPS
+    t, b, s = kinds.TERRAIN, kinds.BEHAVIOURS, lineups.LINEUPS
     bad = {
         "slots 0..n-1": dataclasses.replace(s[1], policies=("walk", "gaps", "jumps", "stairs", "stones")),
         "codes 0..m-1": dataclasses.replace(s[1], targets=("jumps", "gaps", "stones", "stairs")),
@@ -208,11 +208,11 @@ def test_inconsistent_lineups_are_refused():
     }
     for why, suite in bad.items():
         with pytest.raises(ValueError, match=why):
-            kinds.check(t, b, (s[0], suite))
+            lineups.check(t, b, (s[0], suite))
     with pytest.raises(ValueError, match="start with 'paper'"):
-        kinds.check(t, b, s[::-1])
+        lineups.check(t, b, s[::-1])
     with pytest.raises(ValueError, match="paper=True records"):
-        kinds.check(t, b, (dataclasses.replace(s[1], name="paper"),))
+        lineups.check(t, b, (dataclasses.replace(s[1], name="paper"),))
 
 
 def test_every_lineup_has_its_own_reporting_and_tuning_tracks():
@@ -221,7 +221,7 @@ def test_every_lineup_has_its_own_reporting_and_tuning_tracks():
     from biped_switch import config
 
     seeds = config.LINEUP_TRACK_SEEDS
-    assert set(seeds) == set(kinds.LINEUP)
+    assert set(seeds) == set(lineups.LINEUP)
     assert seeds["paper"] == (config.MULTI_TRACK_SEED, config.TUNE_TRACK_SEED)
     starts = sorted(s for pair in seeds.values() for s in pair)
     assert all(b - a >= 2500 for a, b in zip(starts, starts[1:])), starts

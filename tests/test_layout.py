@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 PKG = pathlib.Path(__file__).resolve().parents[1] / "biped_switch"
-BOTTOM = ("config", "kinds", "methods", "names", "paths", "paper", "stats")  # import nothing of the package's stages
+BOTTOM = ("config", "kinds", "lineups", "methods", "names", "paths", "paper", "stats")  # import nothing of the package's stages
 ORDER = {**{m: 0 for m in BOTTOM}, "simulation": 1, "learning": 2, "switching": 3, "evaluation": 4,
          "reports": 5, "products": 6}
 PURE = {"biped_switch.learning.runs"}  # plain-Python modules the reports layer may read

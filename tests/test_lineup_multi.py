@@ -1,4 +1,4 @@
-"""Switching on a line-up other than the paper's (kinds.LINEUP["stones"], Table II-4): the rules
+"""Switching on a line-up other than the paper's (lineups.LINEUP["stones"], Table II-4): the rules
 sized by the line-up and stepped by hand, the failure breakdown per target by hand, which rows a
 line-up can have, the set-ups `evaluate multi` builds for it, and the command itself (faked
 rollouts, and one short real run on mixed4 tracks with the committed policies)."""
@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_switch import config, kinds, stats
+from biped_switch import config, kinds, lineups, stats
 from biped_switch import evaluate as ev
 from biped_switch.evaluation import multi, parts
 from biped_switch.learning import runs as runs_lib
@@ -23,7 +23,7 @@ from biped_switch.products import tables
 from biped_switch.simulation.model import MODELS_DIR
 from biped_switch.switching import rules as sw
 
-STONES, PAPER = kinds.LINEUP["stones"], kinds.PAPER_LINEUP
+STONES, PAPER = lineups.LINEUP["stones"], lineups.PAPER_LINEUP
 REPO = MODELS_DIR.parent
 # the rows the stones line-up can run: the heuristics, its context lookup (with or without the
 # paper's setup policies) and the baselines as they are; the rest read a paper-only part

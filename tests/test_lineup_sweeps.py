@@ -1,4 +1,4 @@
-"""Context sweeps and lookup tables of a line-up other than the paper's (kinds.Lineup "stones": five
+"""Context sweeps and lookup tables of a line-up other than the paper's (lineups.Lineup "stones": five
 policies, four targets, mixed4 tracks): the plan, names and tables by hand, the paper's left as
 they were, and the command line's refusals. No rollout: the sweep's env, suite and batch are the
 stand-ins of test_sweep.py's `fake_sweep`."""
@@ -11,7 +11,7 @@ import types
 import numpy as np
 import pytest
 
-from biped_switch import kinds
+from biped_switch import kinds, lineups
 from biped_switch import sweep as sweep_cli
 from biped_switch.products import sweep as sweep_products
 from biped_switch.simulation.observation import ObsLayout
@@ -20,7 +20,7 @@ from biped_switch.switching.estimator import sweep_name
 
 from test_sweep import fake_sweep  # noqa: F401  (the fixture)
 
-STONES, PAPER = kinds.LINEUP["stones"], kinds.PAPER_LINEUP
+STONES, PAPER = lineups.LINEUP["stones"], lineups.PAPER_LINEUP
 
 
 # ----------------------------------------------------------------------- names and plans
@@ -64,7 +64,7 @@ def test_the_papers_plans_are_the_default_and_other_targets_are_refused():
 
 def test_the_runner_switches_into_the_slot_the_table_leaves_out():
     """make_runner's target (kinds.policy_for) and the lookup's target row are one slot."""
-    for lu in kinds.LINEUPS:
+    for lu in lineups.LINEUPS:
         for t in lu.targets:
             assert lookup.target_slot(t, lu) == kinds.policy_for(t)
             assert lu.policies[lookup.target_slot(t, lu)] == kinds.BEHAVIOUR[t].name

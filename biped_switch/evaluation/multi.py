@@ -11,7 +11,7 @@ baselines (the DQN selector, the end-to-end policy) run the same tracks, seeds a
 env overrides its policy suite was trained with. A row reports % distance, % success and % of
 trials failing on gaps / jumps / stairs, with 95% CIs (stats.py).
 
-Another line-up (`MultiConfig.lineup`, `kinds.Lineup`; Table II-4: stones) runs the same way on
+Another line-up (`MultiConfig.lineup`, `lineups.Lineup`; Table II-4: stones) runs the same way on
 its own track kind (`mixed4`) with its suite (`lineup.policies`) and rules sized by it; the rows
 it cannot have are refused up front (evaluation/parts.py), and each row reports a failure rate
 per target of the line-up.
@@ -45,7 +45,7 @@ from biped_switch.paths import WHEN_DIR
 from biped_switch.simulation.rollout import over_devices
 from biped_switch.stats import episode_table, join_rows
 
-from biped_switch import kinds
+from biped_switch import kinds, lineups
 from biped_switch.evaluation import parts as parts_lib
 from biped_switch.evaluation.parts import find_setup_policies
 from biped_switch.methods import Method, method as method_record
@@ -58,7 +58,7 @@ class MultiConfig:
     """What every row of one `evaluate multi` shares: the trials, where the trained parts are, the
     tracks and the backend. Trial i runs on track `track_seed` + i; `detector_dir`: a learned
     terrain detector in place of the oracle; `when_cfg`: the learned rule's (None: config's);
-    `lineup`: whose policies switch into which targets, on which track kind (kinds.LINEUPS)."""
+    `lineup`: whose policies switch into which targets, on which track kind (lineups.LINEUPS)."""
 
     trials: int
     batch: int
@@ -75,7 +75,7 @@ class MultiConfig:
     detector_dir: str | None = None
     when_dir: str = WHEN_DIR
     when_cfg: object = None
-    lineup: kinds.Lineup = kinds.PAPER_LINEUP
+    lineup: lineups.Lineup = lineups.PAPER_LINEUP
 
 
 def _run_batches(run, trials: int, batch: int, seed: int, print_fn=None, label: str = "") -> dict:
@@ -377,10 +377,10 @@ def evaluate_multi(methods, cfg: MultiConfig, seed: int, print_fn=print,
     return rows, setups
 
 
-def lineup_meta(lineup: kinds.Lineup) -> dict:
+def lineup_meta(lineup: lineups.Lineup) -> dict:
     """What a row and a table record of their line-up: nothing for the paper's (its files stay
     as they were), else its name, policies, targets and track kind."""
-    if lineup == kinds.PAPER_LINEUP:
+    if lineup == lineups.PAPER_LINEUP:
         return {}
     return {"lineup": lineup.name, "lineup_policies": list(lineup.policies),
             "lineup_targets": list(lineup.targets), "tracks": lineup.tracks}
@@ -400,7 +400,7 @@ TRIAL_KEYS = ("trials", "batch", "seed", "horizon_s", "n_artifacts", "stand_in",
 # what a table made before these settings existed was made with (a paper line-up table records
 # no line-up)
 TRIAL_DEFAULTS = {"track_seed": MULTI_TRACK_SEED, "detector": "oracle",
-                  "lineup": kinds.PAPER_LINEUP.name}
+                  "lineup": lineups.PAPER_LINEUP.name}
 
 
 def merge_rows(old: dict | None, rows: list[dict], settings: dict) -> list[dict]:

@@ -1,6 +1,6 @@
 """What a Table II row needs besides its rollout: its trained parts (policies, setup policies,
 estimators, lookup tables, the learned rule, the DQN), whether they exist, and on a line-up other
-than the paper's (`kinds.Lineup`; Table II-4: stones) whether they can exist at all.
+than the paper's (`lineups.Lineup`; Table II-4: stones) whether they can exist at all.
 
 The estimators, the learned when rule, the plain sweep's lookup table and the learned terrain
 detector were made for the paper's line-up: they have no output for a policy or kind it lacks,
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import pathlib
 
-from biped_switch import kinds
+from biped_switch import kinds, lineups
 from biped_switch.config import SETUP_SUITE
 from biped_switch.learning import policies as pol
 from biped_switch.learning import runs as runs_lib
@@ -24,14 +24,14 @@ from biped_switch.switching import estimator as est_lib
 from biped_switch.switching import lookup
 
 
-def new_names(lineup: kinds.Lineup) -> tuple[str, ...]:
+def new_names(lineup: lineups.Lineup) -> tuple[str, ...]:
     """The policies and targets of `lineup` that the paper's line-up lacks (the paper's: none)."""
-    paper = kinds.PAPER_LINEUP
+    paper = lineups.PAPER_LINEUP
     return tuple(dict.fromkeys([p for p in lineup.policies if p not in paper.policies]
                                + [t for t in lineup.targets if t not in paper.targets]))
 
 
-def lineup_gap(rec: Method, lineup: kinds.Lineup) -> str | None:
+def lineup_gap(rec: Method, lineup: lineups.Lineup) -> str | None:
     """The part row `rec` reads that cannot exist for `lineup` (None: the row can run on it)."""
     new = ", ".join(new_names(lineup))
     if not new:
@@ -47,7 +47,7 @@ def lineup_gap(rec: Method, lineup: kinds.Lineup) -> str | None:
     return None
 
 
-def check_rows(recs, lineup: kinds.Lineup) -> None:
+def check_rows(recs, lineup: lineups.Lineup) -> None:
     """Raises ValueError naming each row of `recs` that `lineup` cannot run, and its missing part."""
     bad = [f"row {r.name}: line-up {lineup.name} has no {gap}"
            for r in recs if (gap := lineup_gap(r, lineup))]
@@ -55,7 +55,7 @@ def check_rows(recs, lineup: kinds.Lineup) -> None:
         raise ValueError("; ".join(bad))
 
 
-def check_detector(detector_dir, lineup: kinds.Lineup) -> None:
+def check_detector(detector_dir, lineup: lineups.Lineup) -> None:
     """A learned terrain detector names the paper's classes only (kinds.DETECTOR_CLASSES): on a
     line-up with a target it cannot name, it would never switch into that target's policy."""
     blind = [t for t in lineup.targets if t not in kinds.DETECTOR_CLASSES]
@@ -84,7 +84,7 @@ def find_setup_policies(init: str, runs, names=SETUP_SUITE) -> dict:
 
 def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
                       stand_in: str | None = None, when_dir=WHEN_DIR,
-                      lineup: kinds.Lineup = kinds.PAPER_LINEUP) -> tuple[list, list]:
+                      lineup: lineups.Lineup = lineups.PAPER_LINEUP) -> tuple[list, list]:
     """(methods whose trained parts exist for `lineup`, ["method: what is missing", ...])."""
     ok, skipped = [], []
     for m in methods:
@@ -98,7 +98,7 @@ def available_methods(methods, runs, est_dir, lookup_dir, dqn_dir=None,
 
 
 def _missing(rec: Method, runs: pathlib.Path, est_dir, lookup_dir, dqn_dir, stand_in,
-             when_dir, lineup: kinds.Lineup = kinds.PAPER_LINEUP) -> str | None:
+             when_dir, lineup: lineups.Lineup = lineups.PAPER_LINEUP) -> str | None:
     """The first part of `rec`'s row that is not trained, with the command that makes it (None:
     all there), in the order a user would make them; first, a part `lineup` cannot have."""
     init = rec.suite
@@ -131,7 +131,7 @@ def _missing(rec: Method, runs: pathlib.Path, est_dir, lookup_dir, dqn_dir, stan
     if rec.lookup == "context":
         missing = lookup.context_lookup_missing("stand", lookup_dir, lineup=lineup)
         if missing is None or missing:
-            of, flag = (("", "") if lineup == kinds.PAPER_LINEUP
+            of, flag = (("", "") if lineup == lineups.PAPER_LINEUP
                         else (f" of line-up {lineup.name}", f" --lineup {lineup.name}"))
             return (f"no context lookup table covering every target{of} in {lookup_dir} "
                     f"(python -m biped_switch.sweep --init stand --context{flag})")

@@ -1,6 +1,6 @@
 """The body of `sweep` (biped_switch/sweep.py parses its flags): the switch-point sweeps of each
 target, then the lookup table over every target swept so far, and its figure; sized by the
-line-up swept (`kinds.Lineup`, the paper's by default)."""
+line-up swept (`lineups.Lineup`, the paper's by default)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import sys
 import jax
 import numpy as np
 
-from biped_switch.kinds import PAPER_LINEUP, Lineup
+from biped_switch.lineups import PAPER_LINEUP, Lineup
 from biped_switch.reports import fig4b
 from biped_switch.simulation import env as env_lib
 from biped_switch.switching import lookup

@@ -27,7 +27,8 @@ from biped_switch.evaluation.parts import available_methods, check_detector, lin
 from biped_switch.evaluation.single import evaluate_single, merge_rows as merge_table1
 from biped_switch.products.fig5 import fig5_traces
 from biped_switch.learning.runs import find_policy
-from biped_switch.kinds import KIND, LINEUP, PAPER_LINEUP
+from biped_switch.kinds import KIND
+from biped_switch.lineups import LINEUP, PAPER_LINEUP
 from biped_switch.methods import method as method_record
 from biped_switch.names import MULTI_METHODS
 from biped_switch.paper import TABLE2_FAIL_ORDER

@@ -49,7 +49,7 @@ from biped_switch.learning import runs as runs_lib
 from biped_switch.config import default_env_config, default_estimator_config
 from biped_switch.learning.networks import encode, layer_sizes, swish_mlp
 from biped_switch.learning.normalizer import column_stats, standardize
-from biped_switch.kinds import PAPER_LINEUP, Lineup
+from biped_switch.lineups import PAPER_LINEUP, Lineup
 from biped_switch.names import ARTIFACT_KINDS
 from biped_switch.simulation.observation import STATE_SIZE, layout
 

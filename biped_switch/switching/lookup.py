@@ -1,6 +1,6 @@
 """Lookup tables from the sweeps: the success rate per distance bin for each (source, target) pair,
 its best bin, and the files they are saved in. Every table is sized by a line-up
-(`kinds.Lineup`: rows its policies in slot order, columns its targets in code order); the default
+(`lineups.Lineup`: rows its policies in slot order, columns its targets in code order); the default
 is the paper's, whose files and shapes (4 x 3) stay as they were."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import pathlib
 import numpy as np
-from biped_switch.kinds import PAPER_LINEUP, Lineup
+from biped_switch.lineups import PAPER_LINEUP, Lineup
 from biped_switch.paths import LOOKUP as RESULTS
 from biped_switch.stats import bin_counts
 from biped_switch.switching.estimator import sweep_name

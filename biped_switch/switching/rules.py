@@ -3,7 +3,7 @@ and the multi-policy rollout that applies them on multi-artifact tracks.
 
 Every method differs only in *when* it switches. The oracle detector names the next artifact once
 its start is within 0.9 m of the body; the policy of the line-up that crosses it
-(`kinds.Lineup.policy_of_code`) becomes the target, and the rule decides at each control step
+(`lineups.Lineup.policy_of_code`) becomes the target, and the rule decides at each control step
 whether the active policy hands over now:
   random         at a distance U(0, 0.9) m before the artifact, drawn at detection (the same
                  thing as a random distance travelled after detection)
@@ -25,7 +25,7 @@ While nothing is detected the active policy keeps control; an artifact policy al
 flat after its artifact (>= 1.08 m) until the next artifact comes into range and its switch. The method is a traced integer and the rules' numbers are traced arrays, so
 all methods and both policy suites run through one compiled rollout.
 
-The rules are sized by a line-up (`kinds.Lineup`, default the paper's: 4 policies, 3 targets):
+The rules are sized by a line-up (`lineups.Lineup`, default the paper's: 4 policies, 3 targets):
 `make_rules(..., lineup=)` puts its policy per artifact code, walk slot and policy count in
 `Rules` as arrays, so `decide` reads no module constant. A code the line-up does not switch into
 (a kind added after it) makes its walk policy the target; the lookup and estimator rules have no
@@ -46,7 +46,7 @@ from biped_switch.learning import policies as pol
 from biped_switch.config import default_switching_config
 from biped_switch.simulation.detection import debounce_step
 from biped_switch.simulation.rollout import episode_keys, reset_by_track, run_episodes
-from biped_switch.kinds import PAPER_LINEUP, Lineup
+from biped_switch.lineups import PAPER_LINEUP, Lineup
 from biped_switch.methods import RULES
 
 METHODS = RULES  # the rules a Table II row (methods.py) can name

@@ -34,7 +34,7 @@ A *lead-in* sweep (ours) goes one step further: every episode starts with walk, 
 hand-overs follow the context lookup table, as on Table II's tracks (`sweep_tracks.leadin_plan`);
 named `<init>_leadin`. The tracks and plans are in `sweep_tracks.py`.
 
-A context sweep of another line-up (`--lineup stones`: a `kinds.Lineup`'s policies, targets and
+A context sweep of another line-up (`--lineup stones`: a `lineups.Lineup`'s policies, targets and
 track kind) is named `<init>_context_stones`; plain and lead-in sweeps are the paper's only.
 """
 
@@ -53,7 +53,8 @@ import numpy as np
 from biped_switch.simulation import env as env_lib
 from biped_switch.learning import policies as pol
 from biped_switch.config import SWEEP_TRACK_SEED, default_sweep_config, default_switching_config
-from biped_switch.kinds import PAPER_LINEUP, POLICY_OF_CODE, Lineup, policy_for
+from biped_switch.kinds import POLICY_OF_CODE, policy_for
+from biped_switch.lineups import PAPER_LINEUP, Lineup
 from biped_switch.paths import LOOKUP
 from biped_switch.switching.estimator import sweep_name
 from biped_switch.switching.lookup import load_context_lookup

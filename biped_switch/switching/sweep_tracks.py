@@ -11,7 +11,7 @@ Three plans, one per kind of sweep:
                  from walk or from another artifact's policy before crossing its own artifact:
                  [j, target], [x, j, target] for each kind x != j; walk as in the context plan
 
-The context and lead-in plans are a line-up's (`kinds.Lineup`, default the paper's): its policies
+The context and lead-in plans are a line-up's (`lineups.Lineup`, default the paper's): its policies
 are the sources, its targets the kinds on the tracks, its track kind the env's.
 """
 
@@ -20,7 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from biped_switch.config import SWEEP_TRACK_SEED, default_terrain_config
-from biped_switch.kinds import BEHAVIOUR, LINEUP, PAPER_LINEUP, Lineup
+from biped_switch.kinds import BEHAVIOUR
+from biped_switch.lineups import LINEUP, PAPER_LINEUP, Lineup
 from biped_switch.simulation import env as env_lib
 from biped_switch.simulation import terrain
 from biped_switch.switching.lookup import target_slot
