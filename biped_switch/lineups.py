@@ -37,6 +37,21 @@ class Lineup:
         """Per target (artifact code) the slot of the policy that crosses it."""
         return tuple(next(b.index for b in kinds.BEHAVIOURS if b.crosses == t) for t in self.targets)
 
+    def target_index(self, target: str) -> int:
+        """`target`'s index among the line-up's targets (its artifact code); ValueError naming the
+        line-up when it is not one."""
+        if target not in self.targets:
+            raise ValueError(f"target {target!r} is not one of line-up {self.name}'s targets "
+                             f"{self.targets}")
+        return self.targets.index(target)
+
+    def source_slot(self, policy: str) -> int:
+        """`policy`'s slot in the line-up; ValueError naming the line-up when it is not one."""
+        if policy not in self.policies:
+            raise ValueError(f"source {policy!r} is not one of line-up {self.name}'s policies "
+                             f"{self.policies}")
+        return self.policies.index(policy)
+
     @property
     def walk_policy(self) -> int:
         """The slot of the flat-ground policy (acts while nothing is detected)."""

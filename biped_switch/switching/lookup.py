@@ -16,10 +16,7 @@ from biped_switch.switching.estimator import sweep_name
 
 def target_slot(target: str, lineup: Lineup = PAPER_LINEUP) -> int:
     """The policy slot of the policy that crosses `target`, one of `lineup`'s targets."""
-    if target not in lineup.targets:
-        raise ValueError(f"target {target!r} is not one of line-up {lineup.name}'s targets "
-                         f"{lineup.targets}")
-    return lineup.policy_of_code[lineup.targets.index(target)]
+    return lineup.policy_of_code[lineup.target_index(target)]
 
 
 def _lineup_flag(lineup: Lineup) -> str:
@@ -68,11 +65,11 @@ def lookup_matrix(tables: dict, lineup: Lineup = PAPER_LINEUP) -> np.ndarray:
     line-up's policies and targets; NaN for a target without a table)."""
     m = np.full((lineup.n_policies, lineup.n_targets), np.nan)
     for k, t in tables.items():
-        target_slot(k, lineup)  # a target of another line-up is an error, not a lost column
+        i = lineup.target_index(k)  # a target of another line-up is an error, not a lost column
         if len(t["best_m"]) != lineup.n_policies:
             raise ValueError(f"a {k} table of {len(t['best_m'])} rows for line-up "
                              f"{lineup.name}'s {lineup.n_policies} policies {lineup.policies}")
-        m[:, lineup.targets.index(k)] = t["best_m"]
+        m[:, i] = t["best_m"]
     return m
 
 

@@ -104,26 +104,20 @@ def setup_slots(names, setups: dict, lineup: Lineup = PAPER_LINEUP) -> SetupSlot
     for name, (target, sources, handover_m) in setups.items():
         if name not in names:
             raise ValueError(f"setup policy {name!r} is not in the suite {names}")
-        k = _target_index(lineup, target, name)
+        k = _named(name, lineup.target_index, target)
         _check_handover(name, handover_m)
         for src in sources:
-            setup_of[_source_slot(lineup, src, name), k] = names.index(name)
+            setup_of[_named(name, lineup.source_slot, src), k] = names.index(name)
         handover[k] = float(handover_m)
     return SetupSlots(setup_of, handover)
 
 
-def _target_index(lineup: Lineup, target: str, what: str) -> int:
-    if target not in lineup.targets:
-        raise ValueError(f"{what}: target {target!r} is not one of line-up {lineup.name}'s "
-                         f"targets {lineup.targets}")
-    return lineup.targets.index(target)
-
-
-def _source_slot(lineup: Lineup, src: str, what: str) -> int:
-    if src not in lineup.policies:
-        raise ValueError(f"{what}: source {src!r} is not one of line-up {lineup.name}'s policies "
-                         f"{lineup.policies}")
-    return lineup.policies.index(src)  # slot order = index
+def _named(what: str, fn, name: str) -> int:
+    """`fn(name)` (a line-up's target index or source slot), its ValueError prefixed by `what`."""
+    try:
+        return fn(name)
+    except ValueError as e:
+        raise ValueError(f"{what}: {e}") from None
 
 
 def walk_on_lookup(lookup_m, walk_on: dict, setup: SetupSlots | None = None,
@@ -139,9 +133,9 @@ def walk_on_lookup(lookup_m, walk_on: dict, setup: SetupSlots | None = None,
         raise ValueError(f"lookup table of line-up {lineup.name} must be {shape}, got {out.shape}")
     for target, (sources, handover_m) in walk_on.items():
         _check_handover(f"walk-on into {target}", handover_m)
-        k = _target_index(lineup, target, "walk-on")
+        k = _named("walk-on", lineup.target_index, target)
         for src in sources:
-            j = _source_slot(lineup, src, f"walk-on into {target}")
+            j = _named(f"walk-on into {target}", lineup.source_slot, src)
             if setup is not None and setup.setup_of[j, k] >= 0:
                 raise ValueError(f"walk-on pair {src} -> {target} also has a setup policy")
             out[j, k] = float(handover_m)
